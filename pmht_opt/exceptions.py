@@ -1,0 +1,40 @@
+"""The errors pmht-opt raises. Everything derives from :class:`PmhtOptError`."""
+
+from __future__ import annotations
+
+
+class PmhtOptError(Exception):
+    """Base class of every error raised by pmht-opt."""
+
+
+class ScenarioError(PmhtOptError, ValueError):
+    """A scenario (or scenario file) that is malformed; the message names the field."""
+
+
+class ConfigError(PmhtOptError, ValueError):
+    """A planner configuration or parameter that is out of range; the message names the field."""
+
+
+class UnknownSolverError(ConfigError):
+    """A solver name that is unknown or whose package is not installed; the message lists the others."""
+
+
+class SolverError(PmhtOptError, RuntimeError):
+    """A solve that failed, or that the backend did not stand behind (inaccurate, iteration limit).
+
+    Attributes
+    ----------
+    backend
+        The backend's name.
+    status
+        The backend's own status string.
+    """
+
+    def __init__(self, message: str, backend: str = "", status: str = "") -> None:
+        super().__init__(message)
+        self.backend = backend
+        self.status = status
+
+
+class InfeasibleError(SolverError):
+    """Hard constraints that no plan can meet; the message names the constraint where it can tell."""

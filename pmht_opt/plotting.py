@@ -1,0 +1,75 @@
+"""Figures in the style of the paper (locales as crosses, starts as boxes, one colour per platform).
+
+matplotlib is imported inside the functions, with the non-interactive Agg backend, so importing
+pmht_opt never touches a display.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pmht_opt.scenario import Scenario
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def draw_paths(
+    ax: Any,
+    scenario: Scenario,
+    positions: np.ndarray,
+    title: str | None = None,
+    assignment: np.ndarray | None = None,
+) -> None:
+    """Draw locales, starts and ``positions (M, T+1, 2)`` on the matplotlib axes ``ax``."""
+    colours = [f"C{i % 10}" for i in range(positions.shape[0])]
+    xmin, xmax, ymin, ymax = scenario.bounds  # type: ignore[misc]
+    ax.add_patch(
+        _pyplot().Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, ls=":", lw=0.8, ec="0.5")
+    )
+    z = scenario.locales
+    if assignment is None:
+        ax.plot(z[:, 0], z[:, 1], "x", color="k", ms=5, mew=1.0, label="locales")
+    else:
+        for m, colour in enumerate(colours):
+            mine = assignment == m
+            ax.plot(z[mine, 0], z[mine, 1], "x", color=colour, ms=5, mew=1.2)
+    for m, colour in enumerate(colours):
+        ax.plot(positions[m, :, 0], positions[m, :, 1], "-", color=colour, lw=1.4, label=f"platform {m + 1}")
+    s = scenario.start_positions
+    ax.plot(s[:, 0], s[:, 1], "s", mfc="none", mec="c", ms=9, mew=2.0, label="starts")
+    ax.set_xlabel("X Position")
+    ax.set_ylabel("Y Position")
+    ax.set_aspect("equal", adjustable="datalim")
+    if title:
+        ax.set_title(title, fontsize=9)
+
+
+def plot_paths(
+    scenario: Scenario,
+    positions: np.ndarray,
+    path: str | Path,
+    title: str | None = None,
+    assignment: np.ndarray | None = None,
+) -> Path:
+    """Write one figure of paths to ``path`` and return it."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+    try:
+        draw_paths(ax, scenario, positions, title=title, assignment=assignment)
+        fig.tight_layout()
+        out = Path(path)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(out, dpi=120)
+    finally:
+        plt.close(fig)
+    return out

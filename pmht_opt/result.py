@@ -1,0 +1,180 @@
+"""Plan results and the metrics computed from them (SPEC section 5 and what the paper lacked)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pmht_opt.exceptions import ConfigError
+from pmht_opt.geometry import count_crossings, point_polyline_distance
+from pmht_opt.model import ACC, POS, VEL
+from pmht_opt.scenario import Scenario
+
+#: Default coverage radius: three standard deviations of the paper's penalty (sigma = 0.1).
+DEFAULT_RADIUS = 0.3
+
+
+@dataclass
+class IterationHistory:
+    """Per-iteration record of an EM run.
+
+    ``objective[0]`` is the EM objective of the initial (standing) paths and ``objective[i]`` the one
+    after iteration ``i``; the time and iteration arrays have one entry per iteration (``estep_time``
+    has one more: the final E-step that scores the last paths).
+    """
+
+    objective: np.ndarray
+    estep_time: np.ndarray
+    mstep_time: np.ndarray
+    solver_iterations: np.ndarray
+
+    @property
+    def n_iterations(self) -> int:
+        """Number of EM iterations run."""
+        return int(self.mstep_time.shape[0])
+
+
+@dataclass
+class PlanResult:
+    """Planned paths and what they achieve.
+
+    Attributes
+    ----------
+    states
+        ``(M, T+1, 6)`` states ``[px, vx, ax, py, vy, ay]``, ``t = 0..T``.
+    assignment
+        ``(N,)`` platform of each locale: the MAP of the final weights.
+    visit_time
+        ``(N,)`` time step (``1..T``) of each locale's MAP visit.
+    platform_prior
+        ``(N, M)`` final ``pi^k``.
+    history
+        Per-iteration objective, timings and solver iterations.
+    """
+
+    scenario: Scenario
+    states: np.ndarray
+    assignment: np.ndarray
+    visit_time: np.ndarray
+    platform_prior: np.ndarray
+    history: IterationHistory
+    converged: bool = False
+    wall_time: float = 0.0
+    solver: str = ""
+    snapshots: dict[int, np.ndarray] = field(default_factory=dict)
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """``(M, T+1, 2)`` positions, ``t = 0..T``."""
+        return self.states[:, :, POS]
+
+    @property
+    def n_iterations(self) -> int:
+        """EM iterations run."""
+        return self.history.n_iterations
+
+    # ----------------------------------------------------------------- metrics
+
+    @cached_property
+    def distance_per_platform(self) -> np.ndarray:
+        """``(M,)`` length of each path: sum of the segments between consecutive positions."""
+        seg = np.diff(self.positions, axis=1)
+        return np.hypot(seg[..., 0], seg[..., 1]).sum(axis=1)
+
+    @property
+    def total_distance(self) -> float:
+        """Total distance travelled by all platforms (the paper's metric)."""
+        return float(self.distance_per_platform.sum())
+
+    @cached_property
+    def miss_distance(self) -> np.ndarray:
+        """``(N,)`` distance from each locale to the path of the platform it is assigned to."""
+        out = np.empty(self.scenario.n_locales)
+        pos = self.positions
+        for m in range(self.scenario.n_platforms):
+            mine = self.assignment == m
+            if np.any(mine):
+                out[mine] = point_polyline_distance(self.scenario.locales[mine], pos[m])
+        return out
+
+    def coverage(self, radius: float = DEFAULT_RADIUS) -> float:
+        """Fraction of locales within ``radius`` of their platform's path (default 3 sigma = 0.3)."""
+        radius = float(radius)
+        if not np.isfinite(radius) or radius < 0:
+            raise ConfigError(f"radius: expected a finite non-negative number, got {radius}.")
+        return float(np.mean(self.miss_distance <= radius))
+
+    @cached_property
+    def locales_per_platform(self) -> np.ndarray:
+        """``(M,)`` number of locales assigned to each platform."""
+        return np.bincount(self.assignment, minlength=self.scenario.n_platforms)
+
+    @cached_property
+    def crossings(self) -> int:
+        """Number of intersections between segments of different platforms' paths."""
+        return count_crossings(self.positions)
+
+    @property
+    def max_speed(self) -> float:
+        """Largest speed ``||(vx, vy)||`` over all platforms and times."""
+        v = self.states[:, :, VEL]
+        return float(np.max(np.hypot(v[..., 0], v[..., 1])))
+
+    @property
+    def max_acceleration(self) -> float:
+        """Largest acceleration ``||(ax, ay)||`` over all platforms and times."""
+        a = self.states[:, :, ACC]
+        return float(np.max(np.hypot(a[..., 0], a[..., 1])))
+
+    def max_excursion(self, bounds: tuple[float, float, float, float] | None = None) -> float:
+        """Largest distance of any position outside ``bounds`` (default: the scenario's area)."""
+        xmin, xmax, ymin, ymax = bounds if bounds is not None else self.scenario.bounds  # type: ignore[misc]
+        p = self.positions
+        dx = np.maximum(np.maximum(xmin - p[..., 0], p[..., 0] - xmax), 0.0)
+        dy = np.maximum(np.maximum(ymin - p[..., 1], p[..., 1] - ymax), 0.0)
+        return float(np.max(np.hypot(dx, dy)))
+
+    def metrics(self, radius: float = DEFAULT_RADIUS) -> dict[str, Any]:
+        """The headline metrics as plain Python values (for tables and JSON)."""
+        return {
+            "total_distance": self.total_distance,
+            "coverage": self.coverage(radius),
+            "coverage_radius": float(radius),
+            "mean_miss_distance": float(np.mean(self.miss_distance)),
+            "max_miss_distance": float(np.max(self.miss_distance)),
+            "crossings": int(self.crossings),
+            "max_speed": self.max_speed,
+            "max_acceleration": self.max_acceleration,
+            "max_excursion": self.max_excursion(),
+            "locales_per_platform": self.locales_per_platform.tolist(),
+            "distance_per_platform": self.distance_per_platform.tolist(),
+            "iterations": self.n_iterations,
+            "converged": bool(self.converged),
+            "final_objective": float(self.history.objective[-1]),
+            "wall_time": float(self.wall_time),
+            "solver": self.solver,
+        }
+
+    def plot(self, path: str | Path, title: str | None = None, show_assignment: bool = False) -> Path:
+        """Write a figure in the style of the paper's Figures 2-4 to ``path`` (PNG, PDF, SVG...)."""
+        from pmht_opt.plotting import plot_paths
+
+        return plot_paths(
+            self.scenario,
+            self.positions,
+            path,
+            title=title if title is not None else self._default_title(),
+            assignment=self.assignment if show_assignment else None,
+        )
+
+    def _default_title(self) -> str:
+        name = f"{self.scenario.name}: " if self.scenario.name else ""
+        return (
+            f"{name}PMHT ({self.solver}), distance {self.total_distance:.1f}, "
+            f"coverage@{DEFAULT_RADIUS} {self.coverage():.0%}"
+        )

@@ -1,0 +1,107 @@
+"""The common shape of a backend: a session built once, updated in place, solved many times."""
+
+from __future__ import annotations
+
+import abc
+from typing import Any, ClassVar
+
+import numpy as np
+
+from solvers.exceptions import UpdateError
+from solvers.problem import QPProblem, QPSolution
+
+
+class QPSession(abc.ABC):
+    """A QP handed to one backend, whose numbers can change between solves but whose structure cannot.
+
+    Subclasses implement :meth:`_setup`, :meth:`_apply_update` and :meth:`_solve`. The session keeps
+    :attr:`problem` in step with every update, so a solution can always be checked against the exact
+    problem it claims to solve.
+
+    Parameters
+    ----------
+    problem
+        The problem; its sparsity pattern (of ``P`` and ``A``) and cones are fixed for the session.
+    settings
+        Backend options, passed on verbatim after the backend's defaults. An unknown option raises.
+    """
+
+    #: Registry name of the backend.
+    name: ClassVar[str] = ""
+    #: Whether the backend accepts second-order cones.
+    supports_soc: ClassVar[bool] = False
+
+    def __init__(self, problem: QPProblem, **settings: Any) -> None:
+        self.problem = problem
+        self.settings = dict(settings)
+        self._setup()
+
+    @abc.abstractmethod
+    def _setup(self) -> None:
+        """Hand :attr:`problem` to the backend."""
+
+    @abc.abstractmethod
+    def _apply_update(
+        self,
+        P_data: np.ndarray | None,
+        q: np.ndarray | None,
+        A_data: np.ndarray | None,
+        b: np.ndarray | None,
+    ) -> None:
+        """Push new numbers (already validated and stored in :attr:`problem`) to the backend."""
+
+    @abc.abstractmethod
+    def _solve(self) -> QPSolution:
+        """Solve the current problem."""
+
+    def update(
+        self,
+        *,
+        P_data: np.ndarray | None = None,
+        q: np.ndarray | None = None,
+        A_data: np.ndarray | None = None,
+        b: np.ndarray | None = None,
+    ) -> None:
+        """Replace numbers of the problem, keeping its structure.
+
+        Parameters
+        ----------
+        P_data
+            New values of the stored entries of the upper triangle of ``P``, in CSC order
+            (``problem.P.data``).
+        q
+            New linear cost.
+        A_data
+            New values of the stored entries of ``A``, in CSC order (``problem.A.data``).
+        b
+            New right-hand side.
+        """
+        prob = self.problem
+        P_data = _checked("P_data", P_data, prob.P.data.shape[0])
+        q = _checked("q", q, prob.n)
+        A_data = _checked("A_data", A_data, prob.A.data.shape[0])
+        b = _checked("b", b, prob.m)
+        if P_data is not None:
+            prob.P.data[:] = P_data
+        if q is not None:
+            prob.q = q
+        if A_data is not None:
+            prob.A.data[:] = A_data
+        if b is not None:
+            prob.b = b
+        self._apply_update(P_data, q, A_data, b)
+
+    def solve(self) -> QPSolution:
+        """Solve the current problem and return the backend's answer with a mapped status."""
+        return self._solve()
+
+
+def _checked(name: str, values: np.ndarray | None, size: int) -> np.ndarray | None:
+    if values is None:
+        return None
+    arr = np.asarray(values, dtype=float).reshape(-1)
+    if arr.shape[0] != size:
+        raise UpdateError(f"{name} has {arr.shape[0]} values, the session's problem has {size}.")
+    if not np.all(np.isfinite(arr)):
+        raise UpdateError(f"{name} has non-finite values.")
+    return arr.copy()
