@@ -11,6 +11,7 @@ extra constraints; the history records it after every iteration.
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -20,7 +21,7 @@ import numpy as np
 
 from pmht_opt.estep import EStepResult, estep, safe_log
 from pmht_opt.exceptions import ConfigError, ScenarioError, UnknownSolverError
-from pmht_opt.mstep import MSTEP_BACKENDS, MStepData, available_backends, make_mstep
+from pmht_opt.mstep import MSTEP_BACKENDS, MStep, MStepData, available_backends, make_mstep
 from pmht_opt.model import POS
 from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario
@@ -54,6 +55,9 @@ class PMHTConfig:
     snapshots
         Iterations after which to keep a copy of the positions (e.g. ``(5, 20)`` for the paper's
         Figure 1).
+    threads
+        Threads for the per-platform QPs of ``osqp`` and ``clarabel``; ``None`` uses one per core up to
+        the number of platforms. Use 1 inside process-parallel Monte Carlo runs.
     """
 
     solver: str = "clarabel"
@@ -64,6 +68,7 @@ class PMHTConfig:
     solver_settings: dict[str, Any] = field(default_factory=dict)
     accept_inaccurate: bool = False
     snapshots: tuple[int, ...] = ()
+    threads: int | None = None
 
     def __post_init__(self) -> None:
         self.solver = str(self.solver).lower()
@@ -88,6 +93,10 @@ class PMHTConfig:
                 raise ConfigError(f"{key}: expected True or False, got {getattr(self, key)!r}.")
         if not isinstance(self.solver_settings, dict):
             raise ConfigError(f"solver_settings: expected a dict, got {type(self.solver_settings).__name__}.")
+        if self.threads is not None:
+            if isinstance(self.threads, bool) or not isinstance(self.threads, (int, np.integer)) or self.threads < 1:
+                raise ConfigError(f"threads: expected a positive integer or None, got {self.threads!r}.")
+            self.threads = int(self.threads)
         self.snapshots = tuple(int(s) for s in self.snapshots)
         if any(s < 0 for s in self.snapshots):
             raise ConfigError(f"snapshots: iterations must be >= 0, got {self.snapshots}.")
@@ -158,10 +167,27 @@ def plan_pmht(
     N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon
     log_tau = _initial_log_prior("time_prior", time_prior, (N, T))
     log_k = _initial_log_prior("platform_prior", platform_prior, (N, M))
+    started = time.perf_counter()
+    threads = cfg.threads if cfg.threads is not None else min(M, os.cpu_count() or 1)
+    mstep = make_mstep(scenario, cfg.solver, cfg.solver_settings, cfg.accept_inaccurate, threads)
+    try:
+        return _run_em(scenario, cfg, mstep, log_tau, log_k, callback, started)
+    finally:
+        mstep.close()
+
+
+def _run_em(
+    scenario: Scenario,
+    cfg: PMHTConfig,
+    mstep: MStep,
+    log_tau: np.ndarray | None,
+    log_k: np.ndarray | None,
+    callback: ProgressCallback | None,
+    started: float,
+) -> PlanResult:
+    N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon
     model = scenario.model
     r = scenario.r
-    started = time.perf_counter()
-    mstep = make_mstep(scenario, cfg.solver, cfg.solver_settings, cfg.accept_inaccurate)
 
     # Start from every platform standing still at its start (SPEC section 2).
     states = np.repeat(scenario.initial_states[:, None, :], T + 1, axis=1)

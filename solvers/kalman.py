@@ -8,8 +8,12 @@ Each system ``b`` of the batch follows::
 for ``t = 1..T``. The smoothed means are the minimisers of the corresponding weighted least-squares
 problem, which is what makes the smoother a cross-check for QP formulations of the same problem.
 
-The loop over time is sequential (the filter is a recursion); the batch dimension is vectorised, and
-the backward gains are computed for all steps at once after the forward pass.
+Several mean sequences may share one covariance sequence (``K`` "columns"): systems that differ only
+in their measurement values, such as the independent x and y axes of a planar constant-acceleration
+model with isotropic measurement noise. The covariance recursion is then run once for all of them.
+
+The loop over time is sequential (the filter is a recursion); the batch is vectorised, and the
+backward gains are computed for all steps at once after the forward pass.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ from solvers.exceptions import ProblemError
 
 @dataclass
 class SmootherResult:
-    """Filtered and smoothed moments; ``means`` has shape ``(B, T+1, n)`` and includes ``t = 0``."""
+    """Moments of the smoother. ``means`` is ``(B, T+1, n, K)`` and includes ``t = 0``."""
 
     means: np.ndarray
     filtered_means: np.ndarray
@@ -59,9 +63,10 @@ def rts_smoother(
     H, R
         Measurement matrix ``(p, n)`` and unit-weight measurement covariance ``(p, p)``.
     x0, P0
-        Prior mean ``(B, n)`` and covariance ``(B, n, n)`` of ``x_0`` (``P0 = 0`` for a known start).
+        Prior means ``(B, n, K)`` and covariances ``(B, n, n)`` of ``x_0`` (``P0 = 0`` for a known
+        start). ``K`` mean sequences share each covariance.
     y
-        Measurements ``(B, T, p)`` for ``t = 1..T``; ignored where the weight is zero.
+        Measurements ``(B, T, p, K)`` for ``t = 1..T``; ignored where the weight is zero.
     weight
         Non-negative measurement weights ``(B, T)``: the covariance at step ``t`` is ``R / weight``.
     """
@@ -74,62 +79,79 @@ def rts_smoother(
     H = _check("H", H, (p, n))
     R = _check("R", R, (p, p))
     x0 = np.asarray(x0, dtype=float)
-    B = x0.shape[0]
-    x0 = _check("x0", x0, (B, n))
+    if x0.ndim != 3:
+        raise ProblemError(f"x0 must have shape (B, n, K), got {x0.shape}.")
+    B, K = x0.shape[0], x0.shape[2]
+    x0 = _check("x0", x0, (B, n, K))
     P0 = _check("P0", P0, (B, n, n))
     weight = np.asarray(weight, dtype=float)
     T = weight.shape[1] if weight.ndim == 2 else -1
     weight = _check("weight", weight, (B, T))
-    y = _check("y", y, (B, T, p))
+    y = _check("y", y, (B, T, p, K))
     if np.any(weight < 0):
         raise ProblemError("weight has negative entries.")
 
-    has_meas = weight > 0
-    # Unused where the weight is zero; 1.0 keeps the arithmetic finite and the gain is masked to 0.
-    safe_w = np.where(has_meas, weight, 1.0)
-    FT = F.T
-    HT = H.T
+    # Time-major copies so each step reads contiguous memory.
+    yt = np.ascontiguousarray(np.moveaxis(y, 1, 0))
+    active = (weight > 0).T  # (T, B)
+    # Measurement covariance scale 1 / weight; 1.0 where there is no measurement (its gain is
+    # masked to zero, so the value only has to keep the arithmetic finite).
+    scale = np.divide(1.0, weight, out=np.ones_like(weight), where=weight > 0).T
 
-    mf = np.empty((T + 1, B, n))
+    mf = np.empty((T + 1, B, n, K))
     Pf = np.empty((T + 1, B, n, n))
-    mp = np.empty((T + 1, B, n))
+    mp = np.empty((T + 1, B, n, K))
     Pp = np.empty((T + 1, B, n, n))
     m = x0.copy()
     P = P0.copy()
     mf[0] = m
     Pf[0] = P
-    eye = np.eye(n)
-    for t in range(1, T + 1):
-        m = m @ FT
-        P = F @ P @ FT + Q
-        mp[t] = m
-        Pp[t] = P
-        active = has_meas[:, t - 1]
-        if np.any(active):
-            S = H @ P @ HT + R / safe_w[:, t - 1, None, None]
-            PHt = P @ HT
-            K = np.linalg.solve(S, np.swapaxes(PHt, 1, 2)).swapaxes(1, 2)
-            K *= active[:, None, None]
-            innov = y[:, t - 1] - m @ HT
-            m = m + np.einsum("bij,bj->bi", K, innov)
-            # Joseph form keeps P symmetric and positive semidefinite with tiny process noise.
-            IKH = eye - K @ H
-            P = IKH @ P @ np.swapaxes(IKH, 1, 2) + K @ (R / safe_w[:, t - 1, None, None]) @ np.swapaxes(
-                K, 1, 2
-            )
-        mf[t] = m
-        Pf[t] = P
+    FT = F.T
+    if p == 1:
+        # Scalar measurements: no matrix inverse, and P - K (PH)' keeps P positive semidefinite.
+        h = H[0]
+        var = float(R[0, 0]) * scale
+        for t in range(1, T + 1):
+            m = F @ m
+            P = F @ P @ FT + Q
+            mp[t] = m
+            Pp[t] = P
+            PH = P @ h  # (B, n)
+            gain = PH / (PH @ h + var[t - 1])[:, None]
+            gain *= active[t - 1][:, None]
+            innov = yt[t - 1, :, 0, :] - h @ m  # (B, K)
+            m = m + gain[:, :, None] * innov[:, None, :]
+            P = P - gain[:, :, None] * PH[:, None, :]
+            mf[t] = m
+            Pf[t] = P
+    else:
+        eye = np.eye(n)
+        HT = H.T
+        for t in range(1, T + 1):
+            m = F @ m
+            P = F @ P @ FT + Q
+            mp[t] = m
+            Pp[t] = P
+            Rt = R[None] * scale[t - 1][:, None, None]
+            S = H @ P @ HT + Rt
+            gain = np.swapaxes(np.linalg.solve(S, H @ P), 1, 2)
+            gain *= active[t - 1][:, None, None]
+            m = m + gain @ (yt[t - 1] - H @ m)
+            # Joseph form keeps P symmetric positive semidefinite with tiny process noise.
+            IKH = eye - gain @ H
+            P = IKH @ P @ np.swapaxes(IKH, 1, 2) + gain @ Rt @ np.swapaxes(gain, 1, 2)
+            mf[t] = m
+            Pf[t] = P
 
-    # Gains G_t = Pf_t F' Pp_{t+1}^{-1}, all at once: solve Pp_{t+1} G_t' = F Pf_t.
-    rhs = F @ Pf[:-1]
-    G = np.swapaxes(np.linalg.solve(Pp[1:], rhs), -1, -2)
+    # Gains G_t = Pf_t F' Pp_{t+1}^-1 for all t at once: solve Pp_{t+1} G_t' = F Pf_t.
+    G = np.swapaxes(np.linalg.solve(Pp[1:], F @ Pf[:-1]), -1, -2)
     ms = np.empty_like(mf)
     ms[T] = mf[T]
     for t in range(T - 1, -1, -1):
-        ms[t] = mf[t] + np.einsum("bij,bj->bi", G[t], ms[t + 1] - mp[t + 1])
+        ms[t] = mf[t] + G[t] @ (ms[t + 1] - mp[t + 1])
     return SmootherResult(
-        means=np.swapaxes(ms, 0, 1),
-        filtered_means=np.swapaxes(mf, 0, 1),
-        filtered_covs=np.swapaxes(Pf, 0, 1),
-        predicted_covs=np.swapaxes(Pp, 0, 1),
+        means=np.moveaxis(ms, 0, 1),
+        filtered_means=np.moveaxis(mf, 0, 1),
+        filtered_covs=np.moveaxis(Pf, 0, 1),
+        predicted_covs=np.moveaxis(Pp, 0, 1),
     )

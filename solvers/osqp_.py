@@ -3,6 +3,10 @@
 Zero-cone rows become ``l = u = b``, non-negative-cone rows ``-inf <= A x <= b``. OSQP's
 solution polishing is on by default: on problems whose active set ADMM has found (always the case with
 equalities only) it returns the solution of the reduced KKT system, accurate far beyond ``eps_abs``.
+
+One option is this layer's own, not OSQP's: ``fallback_eps``. When set, a solve whose polishing did
+not succeed is repeated (warm-started) with ``eps_abs = eps_rel = fallback_eps``, so that loose ADMM
+tolerances can be used to find the active set quickly without ever returning a loose solution.
 """
 
 from __future__ import annotations
@@ -66,6 +70,9 @@ class OSQPSession(QPSession):
                 "approximation of the cone."
             )
         opts = {**DEFAULTS, **self.settings}
+        fallback = opts.pop("fallback_eps", None)
+        self._fallback_eps = None if fallback is None else float(fallback)
+        self._eps = (opts.get("eps_abs"), opts.get("eps_rel"))
         self._solver = osqp.OSQP()
         lower, upper = self._bounds()
         prob = self.problem
@@ -96,6 +103,15 @@ class OSQPSession(QPSession):
     def _solve(self) -> QPSolution:
         t0 = time.perf_counter()
         res = self._solver.solve(raise_error=False)
+        retried = False
+        if self._fallback_eps is not None and int(res.info.status_polish) != 1:
+            retried = True
+            eps = self._fallback_eps
+            self._solver.update_settings(eps_abs=eps, eps_rel=eps)
+            try:
+                res = self._solver.solve(raise_error=False)
+            finally:
+                self._solver.update_settings(eps_abs=self._eps[0], eps_rel=self._eps[1])
         elapsed = time.perf_counter() - t0
         info = res.info
         status = _STATUS.get(osqp.SolverStatus(info.status_val), Status.UNKNOWN)
@@ -116,6 +132,7 @@ class OSQPSession(QPSession):
                 "prim_res": float(info.prim_res),
                 "dual_res": float(info.dual_res),
                 "rho_updates": int(info.rho_updates),
+                "tightened": retried,
             },
         )
 
