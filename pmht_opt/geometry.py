@@ -27,8 +27,9 @@ def point_polyline_distance(points: np.ndarray, path: np.ndarray) -> np.ndarray:
     return out
 
 
-def _orient(ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray,
-            cx: np.ndarray, cy: np.ndarray) -> np.ndarray:
+def _orient(
+    ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray, cx: np.ndarray, cy: np.ndarray
+) -> np.ndarray:
     return np.sign((bx - ax) * (cy - ay) - (by - ay) * (cx - ax))
 
 

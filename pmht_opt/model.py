@@ -79,7 +79,7 @@ class MotionModel:
 
     def propagate(self, x0: np.ndarray, steps: int) -> np.ndarray:
         """Noise-free propagation of states ``x0 (..., 6)``: returns ``(..., steps + 1, 6)``."""
-        out = np.empty(x0.shape[:-1] + (steps + 1, STATE_DIM))
+        out = np.empty((*x0.shape[:-1], steps + 1, STATE_DIM))
         out[..., 0, :] = x0
         for t in range(1, steps + 1):
             out[..., t, :] = out[..., t - 1, :] @ self.F.T

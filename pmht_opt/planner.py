@@ -21,8 +21,8 @@ import numpy as np
 
 from pmht_opt.estep import EStepResult, estep, safe_log
 from pmht_opt.exceptions import ConfigError, ScenarioError, UnknownSolverError
-from pmht_opt.mstep import MSTEP_BACKENDS, MStep, MStepData, available_backends, make_mstep
 from pmht_opt.model import POS
+from pmht_opt.mstep import MSTEP_BACKENDS, MStep, MStepData, available_backends, make_mstep
 from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario
 
@@ -92,9 +92,14 @@ class PMHTConfig:
             if not isinstance(getattr(self, key), (bool, np.bool_)):
                 raise ConfigError(f"{key}: expected True or False, got {getattr(self, key)!r}.")
         if not isinstance(self.solver_settings, dict):
-            raise ConfigError(f"solver_settings: expected a dict, got {type(self.solver_settings).__name__}.")
+            kind = type(self.solver_settings).__name__
+            raise ConfigError(f"solver_settings: expected a dict, got {kind}.")
         if self.threads is not None:
-            if isinstance(self.threads, bool) or not isinstance(self.threads, (int, np.integer)) or self.threads < 1:
+            if (
+                isinstance(self.threads, bool)
+                or not isinstance(self.threads, (int, np.integer))
+                or self.threads < 1
+            ):
                 raise ConfigError(f"threads: expected a positive integer or None, got {self.threads!r}.")
             self.threads = int(self.threads)
         self.snapshots = tuple(int(s) for s in self.snapshots)
@@ -117,9 +122,7 @@ class PMHTConfig:
 ProgressCallback = Callable[[int, float], None]
 
 
-def _initial_log_prior(
-    name: str, prior: np.ndarray | None, shape: tuple[int, int]
-) -> np.ndarray | None:
+def _initial_log_prior(name: str, prior: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray | None:
     if prior is None:
         return None
     arr = np.asarray(prior, dtype=float)

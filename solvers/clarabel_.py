@@ -98,8 +98,8 @@ class ClarabelSession(QPSession):
         elapsed = time.perf_counter() - t0
         raw = str(sol.status)
         status = _STATUS.get(raw, Status.UNKNOWN)
-        x = np.array(sol.x)
-        if x.size != self.problem.n or not np.all(np.isfinite(x)):
+        x: np.ndarray | None = np.array(sol.x)
+        if x is None or x.size != self.problem.n or not np.all(np.isfinite(x)):
             x = None
             if status is Status.OPTIMAL:
                 status = Status.NUMERICAL_ERROR

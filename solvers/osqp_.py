@@ -135,4 +135,3 @@ class OSQPSession(QPSession):
                 "tightened": retried,
             },
         )
-

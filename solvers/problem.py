@@ -46,17 +46,17 @@ class Cone:
             raise ProblemError("Expected a second-order cone of dimension >= 2.")
 
 
-def Zero(dim: int) -> Cone:  # noqa: N802 - reads as a type in problem definitions
+def Zero(dim: int) -> Cone:
     """Equality rows: ``A_i x = b_i``."""
     return Cone("zero", dim)
 
 
-def Nonneg(dim: int) -> Cone:  # noqa: N802
+def Nonneg(dim: int) -> Cone:
     """Inequality rows: ``A_i x <= b_i``."""
     return Cone("nonneg", dim)
 
 
-def SOC(dim: int) -> Cone:  # noqa: N802
+def SOC(dim: int) -> Cone:
     """Second-order cone rows: ``||(b - A x)[1:]|| <= (b - A x)[0]``."""
     return Cone("soc", dim)
 

@@ -1,0 +1,171 @@
+"""The ``pmht-opt`` command: a thin layer over the library."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from pmht_opt.exceptions import PmhtOptError
+from pmht_opt.mstep import MSTEP_BACKENDS, available_backends
+from pmht_opt.planner import PMHTConfig, plan_pmht
+from pmht_opt.progress import ProgressBar
+from pmht_opt.result import PlanResult
+from pmht_opt.scenario import Scenario, paper_scenario
+
+
+def _add_planner_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--solver", default="clarabel", choices=sorted(MSTEP_BACKENDS), help="M-step backend")
+    p.add_argument("--iterations", type=int, default=100, help="maximum EM iterations (default 100)")
+    p.add_argument("--tol", type=float, default=0.0, help="relative objective change to stop at (0: never)")
+    p.add_argument(
+        "--update-time-prior",
+        action="store_true",
+        help="re-estimate the time prior each iteration (the paper's literal setting)",
+    )
+    p.add_argument("--paper", action="store_true", help="the paper's settings (PMHTConfig.paper())")
+    p.add_argument("--out", type=Path, default=None, help="write the figure here (PNG, PDF, SVG)")
+    p.add_argument("--json", type=Path, default=None, help="write the metrics and paths here")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _config(args: argparse.Namespace) -> PMHTConfig:
+    common = {"solver": args.solver, "max_iter": args.iterations, "tol": args.tol}
+    if args.paper:
+        return PMHTConfig.paper(**common)
+    return PMHTConfig(update_time_prior=args.update_time_prior, **common)
+
+
+def _run(scenario: Scenario, args: argparse.Namespace, default_out: Path | None) -> PlanResult:
+    cfg = _config(args)
+    bar = None if args.quiet else ProgressBar(cfg.max_iter, label=f"PMHT ({cfg.solver})")
+
+    def progress(it: int, objective: float) -> None:
+        if bar is not None:
+            bar.update(1, suffix=f"objective {objective:.6g}")
+
+    try:
+        result = plan_pmht(scenario, cfg, callback=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    _report(result)
+    out = args.out if args.out is not None else default_out
+    if out is not None:
+        result.plot(out)
+        print(f"figure: {out}")
+    if args.json is not None:
+        payload = {
+            "scenario": scenario.name,
+            "metrics": result.metrics(),
+            "positions": result.positions.tolist(),
+            "assignment": result.assignment.tolist(),
+            "visit_time": result.visit_time.tolist(),
+        }
+        args.json.write_text(json.dumps(payload) + "\n")
+        print(f"metrics and paths: {args.json}")
+    return result
+
+
+def _report(result: PlanResult) -> None:
+    m = result.metrics()
+    h = result.history
+    rows = [
+        ("scenario", result.scenario.name or "-"),
+        (
+            "platforms / locales / horizon",
+            f"{result.scenario.n_platforms} / {result.scenario.n_locales} / {result.scenario.horizon}",
+        ),
+        ("solver", m["solver"]),
+        ("iterations", f"{m['iterations']}" + (" (converged)" if m["converged"] else "")),
+        ("total distance", f"{m['total_distance']:.2f}"),
+        (f"coverage within {m['coverage_radius']}", f"{m['coverage']:.1%}"),
+        ("mean / max miss distance", f"{m['mean_miss_distance']:.3f} / {m['max_miss_distance']:.3f}"),
+        ("locales per platform", " ".join(str(v) for v in m["locales_per_platform"])),
+        ("crossings between platforms", str(m["crossings"])),
+        ("max speed / acceleration", f"{m['max_speed']:.4f} / {m['max_acceleration']:.5f}"),
+        ("max excursion outside area", f"{m['max_excursion']:.3f}"),
+        ("final EM objective", f"{m['final_objective']:.6g}"),
+        (
+            "wall time (E-step / M-step)",
+            f"{m['wall_time']:.2f} s ({h.estep_time.sum():.2f} / {h.mstep_time.sum():.2f})",
+        ),
+    ]
+    width = max(len(k) for k, _ in rows)
+    for key, value in rows:
+        print(f"{key:<{width}}  {value}")
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    scenario = paper_scenario(args.scenario, seed=args.seed)
+    _run(scenario, args, default_out=Path(f"pmht-demo-{args.scenario}.png"))
+    return 0
+
+
+def _cmd_plan(args: argparse.Namespace) -> int:
+    scenario = Scenario.load(args.scenario_file)
+    if not scenario.name:
+        scenario.name = args.scenario_file.stem
+    _run(scenario, args, default_out=None)
+    return 0
+
+
+def _cmd_scenario(args: argparse.Namespace) -> int:
+    scenario = paper_scenario(args.kind, seed=args.seed)
+    path = scenario.save(args.out)
+    print(f"scenario {scenario.name}: {path}")
+    return 0
+
+
+def _cmd_solvers(args: argparse.Namespace) -> int:
+    installed = set(available_backends())
+    for name, package in MSTEP_BACKENDS.items():
+        state = "available" if name in installed else f"missing (pip install {package})"
+        print(f"{name:<9} {state}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``pmht-opt``."""
+    parser = argparse.ArgumentParser(
+        prog="pmht-opt", description="Multi-platform path planning with the PMHT and a QP M-step."
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    demo = sub.add_parser("demo", help="plan a built-in paper scenario, print metrics, write a figure")
+    demo.add_argument("--scenario", default="A", choices=["A", "B", "C"], help="paper scenario (default A)")
+    demo.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
+    _add_planner_options(demo)
+    demo.set_defaults(func=_cmd_demo)
+
+    plan = sub.add_parser("plan", help="plan a scenario file (.toml or .json)")
+    plan.add_argument("scenario_file", type=Path)
+    _add_planner_options(plan)
+    plan.set_defaults(func=_cmd_plan)
+
+    scen = sub.add_parser("scenario", help="write one of the paper's scenarios to a file")
+    scen.add_argument("kind", choices=["A", "B", "C"])
+    scen.add_argument("--seed", type=int, default=0)
+    scen.add_argument("--out", type=Path, required=True, help="file to write (.toml or .json)")
+    scen.set_defaults(func=_cmd_scenario)
+
+    solv = sub.add_parser("solvers", help="list the M-step backends and whether they are installed")
+    solv.set_defaults(func=_cmd_solvers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit status (2 for a bad input or a failed solve)."""
+    args = build_parser().parse_args(argv)
+    try:
+        code: int = args.func(args)
+    except PmhtOptError as err:
+        print(f"pmht-opt: error: {err}", file=sys.stderr)
+        return 2
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,37 @@
+"""Shared fixtures and tolerances.
+
+Tolerances are per backend and stated once here (STYLE lesson 7).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pmht_opt as po
+
+#: Backends of the M-step that every cross-check runs.
+QP_BACKENDS = ["clarabel", "osqp", "cvxpy"]
+ALL_BACKENDS = ["kalman", *QP_BACKENDS]
+#: Largest position difference to the RTS answer accepted on one M-step (issue 2, point 1).
+POSITION_TOL = 1e-6
+
+
+@pytest.fixture(scope="session")
+def scenario_a() -> po.Scenario:
+    return po.paper_scenario("A", seed=1)
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(12345)
+
+
+def small_scenario(n_locales: int = 6, n_platforms: int = 2, horizon: int = 40, seed: int = 0) -> po.Scenario:
+    """A quick random scenario for tests that need many plans."""
+    gen = np.random.default_rng(seed)
+    return po.Scenario(
+        locales=gen.uniform(0, 4, (n_locales, 2)),
+        starts=gen.uniform(0, 4, (n_platforms, 2)),
+        horizon=horizon,
+    )

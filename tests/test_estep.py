@@ -1,0 +1,84 @@
+"""E-step weights against a direct computation, prior updates, and robustness."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import logsumexp
+
+from pmht_opt.estep import estep
+
+
+def brute_force(
+    z: np.ndarray, pos: np.ndarray, log_tau: np.ndarray, log_k: np.ndarray, r: float
+) -> np.ndarray:
+    N = z.shape[0]
+    M, T, _ = pos.shape
+    ll = np.empty((N, T, M))
+    for n in range(N):
+        for t in range(T):
+            for m in range(M):
+                d2 = np.sum((z[n] - pos[m, t]) ** 2)
+                ll[n, t, m] = log_tau[n, t] + log_k[n, m] - d2 / (2 * r) - np.log(2 * np.pi * r)
+    return ll
+
+
+def test_weights_match_direct_formula(rng: np.random.Generator) -> None:
+    N, T, M, r = 5, 7, 3, 0.05
+    z = rng.uniform(0, 3, (N, 2))
+    pos = rng.uniform(0, 3, (M, T, 2))
+    tau = rng.dirichlet(np.ones(T), size=N)
+    k = rng.dirichlet(np.ones(M), size=N)
+    es = estep(z, pos, np.log(tau), np.log(k), r)
+    ll = brute_force(z, pos, np.log(tau), np.log(k), r)
+    lse = logsumexp(ll, axis=(1, 2))
+    np.testing.assert_allclose(es.weights_ntm(), np.exp(ll - lse[:, None, None]), atol=1e-12)
+    np.testing.assert_allclose(es.log_normaliser, lse, rtol=1e-12)
+    w = es.weights_ntm()
+    np.testing.assert_allclose(es.W, w.sum(axis=0))
+    np.testing.assert_allclose(es.WZ, np.einsum("ntm,nd->tmd", w, z))
+    np.testing.assert_allclose(es.time_prior(), w.sum(axis=2))
+    np.testing.assert_allclose(es.platform_prior(), w.sum(axis=1))
+    np.testing.assert_allclose(es.time_prior().sum(axis=1), 1.0)
+
+
+def test_uniform_priors_are_the_default(rng: np.random.Generator) -> None:
+    N, T, M = 4, 6, 2
+    z = rng.uniform(0, 1, (N, 2))
+    pos = rng.uniform(0, 1, (M, T, 2))
+    a = estep(z, pos, None, None, 0.01)
+    b = estep(z, pos, np.full((N, T), -np.log(T)), np.full((N, M), -np.log(M)), 0.01)
+    np.testing.assert_allclose(a.weights, b.weights, atol=1e-14)
+    np.testing.assert_allclose(a.log_normaliser, b.log_normaliser)
+
+
+def test_zero_priors_get_zero_weight(rng: np.random.Generator) -> None:
+    N, T, M = 3, 5, 2
+    z = rng.uniform(0, 1, (N, 2))
+    pos = rng.uniform(0, 1, (M, T, 2))
+    with np.errstate(divide="ignore"):
+        log_k = np.log(np.array([[1.0, 0.0], [0.0, 1.0], [0.5, 0.5]]))
+    es = estep(z, pos, None, log_k, 0.01)
+    w = es.weights_ntm()
+    assert np.all(w[0, :, 1] == 0) and np.all(w[1, :, 0] == 0)
+    np.testing.assert_allclose(w.sum(axis=(1, 2)), 1.0)
+
+
+def test_far_paths_do_not_underflow_to_nan() -> None:
+    """Likelihoods exp(-d^2 / 2r) are all zero in double precision here; weights must still exist."""
+    z = np.array([[0.0, 0.0], [5.0, 5.0]])
+    pos = np.array([[[100.0, 0.0], [200.0, 0.0]], [[0.0, 300.0], [0.0, 400.0]]])  # (M=2, T=2, 2)
+    es = estep(z, pos, None, None, 0.01)
+    assert np.all(np.isfinite(es.weights)) and np.all(np.isfinite(es.log_normaliser))
+    # Locale 0 is nearest to platform 0 at t=1 (distance 100 against 300).
+    assert es.map_assignment()[0][0] == 0 and es.map_assignment()[1][0] == 1
+
+
+def test_extreme_but_finite_coordinates_give_finite_weights() -> None:
+    z = np.array([[0.0, 0.0], [1.0, 1.0]])
+    pos = np.array([[[1e200, 1e200], [1e250, -1e250]], [[-1e300, 0.0], [3e200, 1.0]]])
+    es = estep(z, pos, None, None, 0.01)
+    assert np.all(np.isfinite(es.weights))
+    np.testing.assert_allclose(es.weights.sum(axis=1), 1.0)
+    assert not np.any(np.isnan(es.log_normaliser))
+    # All mass on the nearest pair: platform 0 at t=1 is at distance ~1.4e200, the nearest.
+    assert es.map_assignment()[0][0] == 0

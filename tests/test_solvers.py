@@ -1,0 +1,211 @@
+"""The generic QP layer: every backend on every shared problem, statuses, updates, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import solvers
+from solvers import SOC, Nonneg, QPProblem, Status, Zero
+from solvers.kalman import rts_smoother
+
+BACKENDS = ["osqp", "clarabel", "cvxpy"]
+SOC_BACKENDS = ["clarabel", "cvxpy"]
+#: Accuracy each backend is held to on the shared problems.
+TOL = {"osqp": 1e-6, "clarabel": 1e-7, "cvxpy": 1e-6}
+
+
+def eq_ineq_problem() -> tuple[QPProblem, np.ndarray]:
+    """min 1/2 ||x - c||^2 s.t. x0 + x1 + x2 = 1, x0 <= 0.1: answer by hand."""
+    c = np.array([1.0, 0.5, -0.2])
+    # With x0 fixed at 0.1 (active), x1, x2 minimise ||(x1,x2)-(c1,c2)||^2 on x1 + x2 = 0.9.
+    shift = (0.9 - c[1] - c[2]) / 2
+    answer = np.array([0.1, c[1] + shift, c[2] + shift])
+    prob = QPProblem(
+        P=sp.eye(3, format="csc"),
+        q=-c,
+        A=sp.csc_matrix(np.array([[1.0, 1.0, 1.0], [1.0, 0.0, 0.0]])),
+        b=np.array([1.0, 0.1]),
+        cones=(Zero(1), Nonneg(1)),
+    )
+    return prob, answer
+
+
+def soc_problem() -> tuple[QPProblem, np.ndarray]:
+    """min 1/2 ||x - (3, 4)||^2 s.t. ||x|| <= 1: the projection onto the unit disc."""
+    prob = QPProblem(
+        P=sp.eye(2, format="csc"),
+        q=-np.array([3.0, 4.0]),
+        A=sp.csc_matrix(np.vstack([np.zeros((1, 2)), -np.eye(2)])),
+        b=np.array([1.0, 0.0, 0.0]),
+        cones=(SOC(3),),
+    )
+    return prob, np.array([0.6, 0.8])
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_equality_and_inequality_known_answer(backend: str) -> None:
+    prob, answer = eq_ineq_problem()
+    sol = solvers.solve_qp(prob, backend)
+    assert sol.ok, sol.raw_status
+    assert sol.status is Status.OPTIMAL
+    np.testing.assert_allclose(sol.x, answer, atol=TOL[backend])
+    res = sol.residuals(prob)
+    assert res["primal"] < TOL[backend]
+    assert res["objective"] == pytest.approx(prob.objective(answer), abs=TOL[backend])
+
+
+@pytest.mark.parametrize("backend", SOC_BACKENDS)
+def test_second_order_cone_known_answer(backend: str) -> None:
+    prob, answer = soc_problem()
+    sol = solvers.solve_qp(prob, backend)
+    assert sol.ok
+    np.testing.assert_allclose(sol.x, answer, atol=TOL[backend])
+
+
+def test_osqp_rejects_second_order_cones() -> None:
+    prob, _ = soc_problem()
+    with pytest.raises(solvers.UnsupportedProblemError, match="second-order"):
+        solvers.solve_qp(prob, "osqp")
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_update_in_place_matches_a_fresh_solve(backend: str) -> None:
+    prob, _ = eq_ineq_problem()
+    session = solvers.open_session(prob, backend)
+    assert session.solve().ok
+    new_q = np.array([-0.3, 0.2, 0.4])
+    new_P = np.array([2.0, 1.0, 3.0])
+    session.update(q=new_q, P_data=new_P, b=np.array([2.0, 0.5]))
+    updated = session.solve()
+    fresh_prob = QPProblem(
+        P=sp.diags(new_P, format="csc"),
+        q=new_q,
+        A=prob.A,
+        b=np.array([2.0, 0.5]),
+        cones=prob.cones,
+    )
+    fresh = solvers.solve_qp(fresh_prob, "clarabel")
+    assert updated.ok and fresh.ok
+    np.testing.assert_allclose(updated.x, fresh.x, atol=TOL[backend])
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_infeasible_problem_is_reported_not_solved(backend: str) -> None:
+    # x0 = 1 and x0 <= 0 cannot both hold.
+    prob = QPProblem(
+        P=sp.eye(1, format="csc"),
+        q=np.zeros(1),
+        A=sp.csc_matrix(np.array([[1.0], [1.0]])),
+        b=np.array([1.0, 0.0]),
+        cones=(Zero(1), Nonneg(1)),
+    )
+    sol = solvers.solve_qp(prob, backend)
+    assert not sol.ok
+    assert sol.status in solvers.INFEASIBLE
+
+
+def test_max_iterations_is_not_a_solution() -> None:
+    prob, _ = eq_ineq_problem()
+    sol = solvers.solve_qp(prob, "osqp", max_iter=1, eps_abs=1e-12, eps_rel=1e-12)
+    assert sol.status is Status.MAX_ITER
+    assert not sol.ok and not sol.usable(accept_inaccurate=True)
+
+
+def test_unknown_solver_lists_available() -> None:
+    prob, _ = eq_ineq_problem()
+    with pytest.raises(solvers.UnknownSolverError, match="available: .*clarabel"):
+        solvers.solve_qp(prob, "gurobi-free")
+
+
+@pytest.mark.parametrize("backend", ["osqp", "clarabel"])
+def test_unknown_setting_raises_settings_error(backend: str) -> None:
+    prob, _ = eq_ineq_problem()
+    with pytest.raises(solvers.SettingsError):
+        solvers.open_session(prob, backend, no_such_option=1)
+
+
+def test_update_with_wrong_size_raises() -> None:
+    prob, _ = eq_ineq_problem()
+    session = solvers.open_session(prob, "clarabel")
+    with pytest.raises(solvers.UpdateError, match="q has 2 values"):
+        session.update(q=np.zeros(2))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"q": np.zeros(2)}, "P has shape"),
+        ({"b": np.zeros(3)}, "cone dimensions add up"),
+        ({"q": np.array([np.nan, 0.0, 0.0])}, "q has non-finite"),
+    ],
+)
+def test_malformed_problem_raises(kwargs: dict, message: str) -> None:
+    base = {
+        "P": sp.eye(3, format="csc"),
+        "q": np.zeros(3),
+        "A": sp.csc_matrix(np.ones((2, 3))),
+        "b": np.zeros(2),
+        "cones": (Zero(2),),
+    }
+    base.update(kwargs)
+    if "b" in kwargs:
+        base["A"] = sp.csc_matrix(np.ones((3, 3)))
+    with pytest.raises(solvers.ProblemError, match=message):
+        QPProblem(**base)
+
+
+def test_problem_keeps_explicit_zeros_in_P() -> None:
+    P = sp.csc_matrix((np.array([0.0, 1.0]), np.array([0, 1]), np.array([0, 1, 2])), shape=(2, 2))
+    prob = QPProblem(P=P, q=np.zeros(2), A=sp.csc_matrix((0, 2)), b=np.zeros(0), cones=())
+    assert prob.P.nnz == 2
+
+
+def test_rts_matches_dense_least_squares(rng: np.random.Generator) -> None:
+    """The smoother's means are the exact minimiser of the weighted least-squares problem."""
+    T = 12
+    F = np.array([[1.0, 1.0], [0.0, 1.0]])
+    Q = np.array([[0.3, 0.1], [0.1, 0.2]])
+    H = np.array([[1.0, 0.0]])
+    R = np.array([[0.5]])
+    x0 = np.array([1.0, -0.5])
+    y = rng.normal(size=T)
+    w = rng.uniform(0.2, 2.0, size=T)
+    w[[3, 7]] = 0.0
+    res = rts_smoother(F, Q, H, R, x0[None, :, None], np.zeros((1, 2, 2)), y[None, :, None, None], w[None])
+    # Dense normal equations over x_1..x_T (x_0 known).
+    n = 2 * T
+    Qi = np.linalg.inv(Q)
+    A = np.zeros((n, n))
+    g = np.zeros(n)
+    for t in range(T):
+        i = slice(2 * t, 2 * t + 2)
+        A[i, i] += Qi
+        if t + 1 < T:
+            # The step x_{t+2} - F x_{t+1} couples this block i with the next block j.
+            j = slice(2 * t + 2, 2 * t + 4)
+            A[i, i] += F.T @ Qi @ F
+            A[j, i] -= Qi @ F
+            A[i, j] -= F.T @ Qi
+        if t == 0:
+            g[i] += Qi @ F @ x0
+        A[i, i] += w[t] * H.T @ H / R[0, 0]
+        g[i] += w[t] * H[0] * y[t] / R[0, 0]
+    expected = np.linalg.solve(A, g).reshape(T, 2)
+    np.testing.assert_allclose(res.means[0, 1:, :, 0], expected, atol=1e-9)
+    np.testing.assert_allclose(res.means[0, 0, :, 0], x0)
+
+
+def test_rts_rejects_bad_shapes() -> None:
+    with pytest.raises(solvers.ProblemError, match="weight has shape"):
+        rts_smoother(
+            np.eye(2),
+            np.eye(2),
+            np.ones((1, 2)),
+            np.eye(1),
+            np.zeros((1, 2, 1)),
+            np.zeros((1, 2, 2)),
+            np.zeros((1, 3, 1, 1)),
+            np.ones((2, 3)),
+        )
