@@ -310,7 +310,7 @@ class QPMStep(MStep):
         # answer is written down instead of solved for. Valid because these QPs have no constraints
         # other than the dynamics.
         idle = ~np.any(data.W > 0, axis=0)
-        active = [m for m in range(self.M) if not idle[m]]
+        active = [int(m) for m in np.flatnonzero(~idle)]
 
         def one(m: int) -> solvers.QPSolution:
             return self.blocks[m].solve(data.W[:, m], data.WZ[:, m], data.r)
@@ -322,7 +322,7 @@ class QPMStep(MStep):
         else:
             sols = [one(m) for m in active]
         body = np.empty((self.M, self.T, STATE_DIM))
-        for m in np.flatnonzero(idle):
+        for m in np.flatnonzero(idle).tolist():
             body[m] = self.model.propagate(self.x0[m], self.T)[1:]
         for m, sol in zip(active, sols, strict=True):
             check_solution(sol, self.accept_inaccurate, platform=m)

@@ -1,0 +1,78 @@
+"""Metrics on hand-made paths with known answers, and the figure."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import pmht_opt as po
+from pmht_opt.geometry import count_crossings, point_polyline_distance
+from pmht_opt.result import IterationHistory
+
+
+def hand_made(positions: np.ndarray, locales: np.ndarray, assignment: np.ndarray) -> po.PlanResult:
+    M, T1, _ = positions.shape
+    states = np.zeros((M, T1, 6))
+    states[:, :, 0] = positions[:, :, 0]
+    states[:, :, 3] = positions[:, :, 1]
+    states[:, 1:, 1] = np.diff(positions[:, :, 0], axis=1)
+    states[:, 1:, 4] = np.diff(positions[:, :, 1], axis=1)
+    sc = po.Scenario(locales=locales, starts=positions[:, 0], horizon=T1 - 1, bounds=(0, 4, 0, 4))
+    hist = IterationHistory(np.zeros(1), np.zeros(1), np.zeros(0), np.zeros(0, dtype=int))
+    return po.PlanResult(
+        sc, states, assignment, np.ones(len(locales), dtype=int), np.ones((len(locales), M)), hist
+    )
+
+
+def test_distance_coverage_miss_and_crossings() -> None:
+    # Two straight paths crossing once, away from their vertices; four steps each.
+    p0 = np.linspace([0, 0], [4, 4], 5)
+    p1 = np.linspace([0, 4], [4, 0.5], 5)
+    locales = np.array([[1.0, 1.2], [3.0, 1.0], [2.0, 3.0]])
+    res = hand_made(np.stack([p0, p1]), locales, np.array([0, 0, 0]))
+    assert res.total_distance == pytest.approx(4 * np.sqrt(2) + np.hypot(4, 3.5))
+    np.testing.assert_allclose(res.distance_per_platform, [4 * np.sqrt(2), np.hypot(4, 3.5)])
+    np.testing.assert_allclose(res.miss_distance, [0.2, 2.0, 1.0] / np.sqrt(2), atol=1e-12)
+    assert res.coverage(0.3) == pytest.approx(1 / 3)
+    assert res.coverage(1.0) == pytest.approx(2 / 3)
+    assert res.coverage(1.5) == 1.0
+    assert res.crossings == 1
+    np.testing.assert_array_equal(res.locales_per_platform, [3, 0])
+    assert res.max_speed == pytest.approx(np.sqrt(2))
+    assert res.max_excursion() == 0.0
+    with pytest.raises(po.ConfigError, match="radius"):
+        res.coverage(-1)
+
+
+def test_excursion_outside_the_area() -> None:
+    p = np.array([[[1.0, 1.0], [5.0, 1.0], [4.0, 7.0]]])
+    res = hand_made(p, np.array([[1.0, 1.0]]), np.array([0]))
+    assert res.max_excursion() == pytest.approx(np.hypot(0.0, 3.0))
+
+
+def test_point_polyline_distance_known() -> None:
+    path = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0]])
+    pts = np.array([[1.0, 1.0], [3.0, 3.0], [-1.0, 0.0]])
+    np.testing.assert_allclose(point_polyline_distance(pts, path), [1.0, np.sqrt(2), 1.0])
+
+
+def test_parallel_paths_do_not_cross() -> None:
+    t = np.linspace(0, 1, 6)
+    a = np.column_stack([t, 0 * t])
+    b = np.column_stack([t, 0 * t + 0.1])
+    assert count_crossings(np.stack([a, b])) == 0
+    # A zig-zag across the line crosses it on every pass.
+    zig = np.column_stack([np.linspace(0.05, 1.05, 6), [-1, 1, -1, 1, -1, 1]])
+    assert count_crossings(np.stack([a, zig])) == 5
+
+
+def test_plot_writes_a_png(tmp_path: Path) -> None:
+    sc = po.paper_scenario("B", seed=0, horizon=60)
+    res = po.plan_pmht(sc, po.PMHTConfig(max_iter=5))
+    out = res.plot(tmp_path / "fig" / "paths.png")
+    data = out.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+    metrics = res.metrics()
+    assert set(metrics) >= {"total_distance", "coverage", "crossings", "max_speed", "max_acceleration"}
