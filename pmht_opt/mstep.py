@@ -10,9 +10,10 @@ penalty weights ``W / r`` on the positions; the alternative with ``Q^-1`` in the
 1e10 against 1e2) is so badly conditioned that solvers report success several units from the answer
 (SPEC section 6).
 
-Variables, per platform ``m`` and step ``t = 1..T``: a block of 12, ``[x_t (6), u_t (6)]``, at offset
-``12 * (m * T + t - 1)``. Constraints: ``x_t - F x_{t-1} - L u_t = 0`` (``x_1 - L u_1 = F x_0``). The QP
-is built once per plan; each iteration changes only the diagonal of ``P`` and ``q``.
+Without coupling constraints the QP separates by platform, so each platform is its own QP. Its
+variables, per step ``t = 1..T``, are a block of 12, ``[x_t (6), u_t (6)]``, at offset ``12 (t - 1)``;
+its constraints ``x_t - F x_{t-1} - L u_t = 0`` (``x_1 - L u_1 = F x_0``). Each QP is built once per
+plan; an iteration changes only the diagonal of ``P`` and ``q``.
 
 Backends:
 
