@@ -55,6 +55,11 @@ class MotionModel:
         return np.linalg.cholesky(self.Q3)
 
     @cached_property
+    def L3_inv(self) -> np.ndarray:
+        """Inverse of :attr:`L3` (computed once; used by every evaluation of the EM objective)."""
+        return np.linalg.inv(self.L3)
+
+    @cached_property
     def F(self) -> np.ndarray:
         """Full transition matrix ``(6, 6)``, ``blockdiag(F3, F3)``."""
         return np.kron(np.eye(2), self.F3)
@@ -93,9 +98,8 @@ class MotionModel:
         resid = states[..., 1:, :] - states[..., :-1, :] @ self.F.T
         # L is block diagonal with two lower-triangular 3x3 blocks: solve per axis.
         out = np.empty_like(resid)
-        Linv3 = np.linalg.inv(self.L3)
-        out[..., :3] = resid[..., :3] @ Linv3.T
-        out[..., 3:] = resid[..., 3:] @ Linv3.T
+        out[..., :3] = resid[..., :3] @ self.L3_inv.T
+        out[..., 3:] = resid[..., 3:] @ self.L3_inv.T
         return out
 
     def log_prior(self, states: np.ndarray) -> float:
