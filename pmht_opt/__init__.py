@@ -6,6 +6,7 @@ Public names are re-exported here; see README.md for an overview.
 from pmht_opt.exceptions import (
     ConfigError,
     InfeasibleError,
+    MissingDependencyError,
     PmhtOptError,
     ScenarioError,
     SolverError,
@@ -23,6 +24,7 @@ __all__ = [
     "ConfigError",
     "InfeasibleError",
     "IterationHistory",
+    "MissingDependencyError",
     "MotionModel",
     "PMHTConfig",
     "PlanResult",

@@ -38,3 +38,7 @@ class SolverError(PmhtOptError, RuntimeError):
 
 class InfeasibleError(SolverError):
     """Hard constraints that no plan can meet; the message names the constraint where it can tell."""
+
+
+class MissingDependencyError(PmhtOptError, ImportError):
+    """An optional feature whose package is not installed; the message names the extra to install."""
