@@ -1,0 +1,66 @@
+"""Locale orderings (tours) of the open multiple TSP: the GA-TSP baseline and OR-Tools routing.
+
+:func:`order_locales` is the entry point; every method is one function ``solve(scenario, **options) ->
+TourResult`` registered in :data:`METHODS`. OR-Tools is imported only when its method runs.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from typing import Any
+
+from pmht_opt.exceptions import ConfigError
+from pmht_opt.ordering.ga import GAParams, solve_ga_tsp
+from pmht_opt.ordering.ortools_ import solve_ortools
+from pmht_opt.ordering.tour import TourResult, check_routes, route_costs, tour_distance
+from pmht_opt.scenario import Scenario
+
+#: Ordering methods by name.
+METHODS: dict[str, Callable[..., TourResult]] = {"ga": solve_ga_tsp, "ortools": solve_ortools}
+
+
+def order_locales(scenario: Scenario, method: str = "ga", **options: Any) -> TourResult:
+    """Order the locales into one open route per platform.
+
+    Parameters
+    ----------
+    scenario
+        The scenario to solve.
+    method
+        ``"ga"`` (:func:`solve_ga_tsp`, the paper's baseline) or ``"ortools"`` (:func:`solve_ortools`,
+        near-optimal; needs the ``ortools`` extra).
+    options
+        Keyword options of the chosen method, e.g. ``seed``, ``iterations``, ``min_tour`` for the GA or
+        ``time_limit``, ``min_tour`` for OR-Tools.
+
+    Raises
+    ------
+    ConfigError
+        An unknown method (the message lists the methods) or an option the method does not take.
+    """
+    if not isinstance(scenario, Scenario):
+        raise ConfigError(f"scenario: expected a Scenario, got {type(scenario).__name__}.")
+    solve = METHODS.get(method) if isinstance(method, str) else None
+    if solve is None:
+        raise ConfigError(f"method: expected one of {', '.join(sorted(METHODS))}, got {method!r}.")
+    accepted = [p for p in inspect.signature(solve).parameters if p != "scenario"]
+    unknown = sorted(set(options) - set(accepted))
+    if unknown:
+        raise ConfigError(
+            f"{unknown[0]}: not an option of method {method!r}; it takes {', '.join(accepted)}."
+        )
+    return solve(scenario, **options)
+
+
+__all__ = [
+    "METHODS",
+    "GAParams",
+    "TourResult",
+    "check_routes",
+    "order_locales",
+    "route_costs",
+    "solve_ga_tsp",
+    "solve_ortools",
+    "tour_distance",
+]

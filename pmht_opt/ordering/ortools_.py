@@ -1,0 +1,221 @@
+"""Near-optimal orderings from OR-Tools routing (the optional ``ortools`` extra).
+
+The open multiple TSP with a start per platform is posed as a vehicle routing problem on ``N + M + 1``
+nodes: the locales ``0 .. N-1``, one start node ``N + m`` per platform (vehicle ``m`` starts there) and a
+single shared end node ``N + M`` reached at zero cost from anywhere, which makes the routes open. Arcs into
+a start node never occur in a solution (OR-Tools uses start nodes only as starts) and get the largest
+cost. Arc costs are integers: distances times a scale chosen so the largest arc is :data:`COST_SCALE_MAX`,
+i.e. a relative rounding error of about 1e-9 per arc. The reported distance is recomputed in floating
+point from the routes, never taken from the integer objective.
+
+``min_tour`` is a counting dimension: every arc adds 1, so the cumul at a vehicle's end is its number of
+locales plus one, and is constrained to ``>= min_tour + 1``.
+"""
+
+from __future__ import annotations
+
+import numbers
+import time
+from typing import Any
+
+import numpy as np
+
+from pmht_opt.exceptions import ConfigError, MissingDependencyError, SolverError
+from pmht_opt.ordering.tour import TourResult, _check_int, check_min_tour, tour_distance
+from pmht_opt.scenario import Scenario
+
+#: Integer cost of the longest arc; leaves int64 headroom for OR-Tools' sums and GLS penalties.
+COST_SCALE_MAX = 1_000_000_000
+
+FIRST_SOLUTIONS = (
+    "AUTOMATIC",
+    "PATH_CHEAPEST_ARC",
+    "PATH_MOST_CONSTRAINED_ARC",
+    "SAVINGS",
+    "PARALLEL_SAVINGS",
+    "SWEEP",
+    "CHRISTOFIDES",
+    "BEST_INSERTION",
+    "PARALLEL_CHEAPEST_INSERTION",
+    "SEQUENTIAL_CHEAPEST_INSERTION",
+    "LOCAL_CHEAPEST_INSERTION",
+    "LOCAL_CHEAPEST_COST_INSERTION",
+    "GLOBAL_CHEAPEST_ARC",
+    "LOCAL_CHEAPEST_ARC",
+    "FIRST_UNBOUND_MIN_VALUE",
+)
+METAHEURISTICS = (
+    "AUTOMATIC",
+    "GREEDY_DESCENT",
+    "GUIDED_LOCAL_SEARCH",
+    "SIMULATED_ANNEALING",
+    "TABU_SEARCH",
+    "GENERIC_TABU_SEARCH",
+)
+
+
+def _import_ortools() -> tuple[Any, Any]:
+    try:
+        from ortools.constraint_solver import pywrapcp, routing_enums_pb2
+    except ImportError as err:
+        raise MissingDependencyError(
+            'The OR-Tools ordering needs the ortools package: pip install "pmht-opt[ortools]".'
+        ) from err
+    return pywrapcp, routing_enums_pb2
+
+
+def _choice(name: str, value: Any, allowed: tuple[str, ...]) -> str:
+    key = str(value).upper()
+    if not isinstance(value, str) or key not in allowed:
+        raise ConfigError(f"{name}: expected one of {', '.join(allowed)}, got {value!r}.")
+    return key
+
+
+def arc_costs(scenario: Scenario) -> tuple[np.ndarray, float]:
+    """Integer arc-cost matrix ``(N+M+1, N+M+1)`` of the routing model and its scale (cost per unit).
+
+    Rows are tails and columns heads: locales, then start nodes, then the end node.
+    """
+    z, s = scenario.locales, scenario.start_positions
+    N, M = z.shape[0], s.shape[0]
+    pts = np.vstack([z, s])
+    dist = np.sqrt(((pts[:, None, :] - pts[None, :, :]) ** 2).sum(-1))
+    longest = float(dist[:, :N].max()) if N else 0.0
+    scale = COST_SCALE_MAX / longest if longest > 0 else 1.0
+    size = N + M + 1
+    cost = np.zeros((size, size), dtype=np.int64)
+    cost[: N + M, :N] = np.rint(dist[:, :N] * scale).astype(np.int64)
+    # Into a start: never used by a solution, priced out in case a heuristic considers it.
+    cost[:, N : N + M] = COST_SCALE_MAX * 4
+    cost[:, N + M] = 0
+    np.fill_diagonal(cost, 0)
+    return cost, scale
+
+
+def solve_ortools(
+    scenario: Scenario,
+    time_limit: float = 1.0,
+    min_tour: int = 1,
+    first_solution: str = "PATH_CHEAPEST_ARC",
+    metaheuristic: str = "GUIDED_LOCAL_SEARCH",
+    solution_limit: int | None = None,
+    log_search: bool = False,
+) -> TourResult:
+    """Order the locales with OR-Tools routing: open routes from per-platform starts, minimum distance.
+
+    Parameters
+    ----------
+    scenario
+        Locales ``(N, 2)`` and platforms' starts ``(M, 2)``.
+    time_limit
+        Seconds of search (the metaheuristic runs until then). OR-Tools routing has no seed; with a time
+        limit the result can vary slightly between runs. For a reproducible answer use ``solution_limit``
+        or ``metaheuristic="GREEDY_DESCENT"``.
+    min_tour
+        Minimum locales per route, ``>= 1`` with ``min_tour * M <= N``.
+    first_solution
+        Name of an OR-Tools ``FirstSolutionStrategy`` (see :data:`FIRST_SOLUTIONS`).
+    metaheuristic
+        Name of an OR-Tools ``LocalSearchMetaheuristic`` (see :data:`METAHEURISTICS`).
+    solution_limit
+        Stop after this many solutions (``None``: no limit).
+    log_search
+        Let OR-Tools log its search to stderr.
+
+    Returns
+    -------
+    TourResult
+        ``history`` holds the costs of the improving solutions found, in order (the last one is the
+        answer, up to the integer scaling).
+
+    Raises
+    ------
+    MissingDependencyError
+        ortools is not installed.
+    SolverError
+        OR-Tools found no solution within the limits.
+    """
+    if (
+        isinstance(time_limit, bool)
+        or not isinstance(time_limit, numbers.Real)
+        or not (np.isfinite(time_limit) and time_limit > 0)
+    ):
+        raise ConfigError(f"time_limit: expected a positive number of seconds, got {time_limit!r}.")
+    limit = float(time_limit)
+    min_tour = check_min_tour(scenario, min_tour)
+    first = _choice("first_solution", first_solution, FIRST_SOLUTIONS)
+    meta = _choice("metaheuristic", metaheuristic, METAHEURISTICS)
+    if solution_limit is not None:
+        solution_limit = _check_int("solution_limit", solution_limit, 1)
+    if not isinstance(log_search, bool):
+        raise ConfigError(f"log_search: expected True or False, got {log_search!r}.")
+    pywrapcp, enums = _import_ortools()
+
+    N, M = scenario.n_locales, scenario.n_platforms
+    cost, scale = arc_costs(scenario)
+    t0 = time.perf_counter()
+    manager = pywrapcp.RoutingIndexManager(N + M + 1, M, [N + m for m in range(M)], [N + M] * M)
+    routing = pywrapcp.RoutingModel(manager)
+    transit = routing.RegisterTransitMatrix(cost.tolist())
+    routing.SetArcCostEvaluatorOfAllVehicles(transit)
+    # Every arc counts 1: the cumul at a vehicle's end is its number of locales + 1.
+    routing.AddConstantDimension(1, N + 1, True, "count")
+    count = routing.GetDimensionOrDie("count")
+    for v in range(M):
+        count.CumulVar(routing.End(v)).SetMin(min_tour + 1)
+
+    improvements: list[float] = []
+
+    def record() -> None:
+        value = routing.CostVar().Value() / scale
+        if not improvements or value < improvements[-1]:
+            improvements.append(value)
+
+    routing.AddAtSolutionCallback(record)
+
+    search = pywrapcp.DefaultRoutingSearchParameters()
+    search.first_solution_strategy = getattr(enums.FirstSolutionStrategy, first)
+    search.local_search_metaheuristic = getattr(enums.LocalSearchMetaheuristic, meta)
+    search.time_limit.FromMilliseconds(max(1, round(limit * 1000)))
+    if solution_limit is not None:
+        search.solution_limit = solution_limit
+    search.log_search = log_search
+
+    solution = routing.SolveWithParameters(search)
+    wall = time.perf_counter() - t0
+    if solution is None:
+        raise SolverError(
+            f"OR-Tools found no ordering within {limit} s (status {routing.status()}); "
+            "raise time_limit or lower min_tour.",
+            backend="ortools",
+            status=str(routing.status()),
+        )
+
+    routes: list[np.ndarray] = []
+    for v in range(M):
+        node_index = solution.Value(routing.NextVar(routing.Start(v)))
+        route = []
+        while not routing.IsEnd(node_index):
+            route.append(manager.IndexToNode(node_index))
+            node_index = solution.Value(routing.NextVar(node_index))
+        routes.append(np.array(route, dtype=np.intp))
+
+    total = tour_distance(scenario, routes)
+    history = np.array(improvements if improvements else [solution.ObjectiveValue() / scale])
+    return TourResult(
+        routes=routes,
+        total_distance=total,
+        history=history,
+        wall_time=wall,
+        method="ortools",
+        scenario=scenario,
+        extras={
+            "time_limit": limit,
+            "min_tour": min_tour,
+            "first_solution": first,
+            "metaheuristic": meta,
+            "status": int(routing.status()),
+            "objective_scaled": int(solution.ObjectiveValue()),
+            "cost_scale": scale,
+        },
+    )

@@ -1,0 +1,304 @@
+"""Tours of the open multiple travelling salesman problem and their cost (SPEC section 3).
+
+A *tour* is one route per platform: route ``m`` is an integer array of locale indices in visiting order,
+flown by platform ``m`` from its start. Every locale is in exactly one route and nobody returns, so the
+cost of a tour is
+
+.. math::
+
+    C = \\sum_{m=1}^{M} \\Big( \\lVert z_{r_m(1)} - s_m \\rVert
+        + \\sum_{k=2}^{|r_m|} \\lVert z_{r_m(k)} - z_{r_m(k-1)} \\rVert \\Big),
+
+with ``s_m`` platform ``m``'s start and an empty route costing 0. The solvers compute ``C`` from
+precomputed distance matrices; :func:`route_costs` recomputes it here from coordinates alone, so a result
+can be checked without trusting the solver that made it.
+"""
+
+from __future__ import annotations
+
+import numbers
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pmht_opt.exceptions import ConfigError, SolverError
+from pmht_opt.scenario import Scenario
+
+#: Relative tolerance of :meth:`TourResult.validate` on the stored total distance.
+DISTANCE_RTOL = 1e-9
+
+
+def _as_route(index: int, route: Any, n_locales: int) -> np.ndarray:
+    """One route as an ``intp`` array, or ConfigError saying what is wrong with it."""
+    try:
+        arr = np.asarray(route)
+    except (TypeError, ValueError):
+        raise ConfigError(f"routes[{index}]: expected a sequence of locale indices, got {route!r}.") from None
+    if arr.ndim != 1:
+        raise ConfigError(
+            f"routes[{index}]: expected a 1-D sequence of locale indices, got shape {arr.shape}."
+        )
+    if arr.size == 0:
+        return np.zeros(0, dtype=np.intp)
+    if arr.dtype.kind == "b" or arr.dtype.kind not in "iuf":
+        raise ConfigError(f"routes[{index}]: expected integer locale indices, got dtype {arr.dtype}.")
+    if arr.dtype.kind == "f":
+        # Whole floats (e.g. from a JSON round trip) are accepted; fractions are a mistake.
+        if not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)):
+            raise ConfigError(f"routes[{index}]: expected integer locale indices, got {arr.tolist()}.")
+    out = arr.astype(np.intp)
+    bad = (out < 0) | (out >= n_locales)
+    if np.any(bad):
+        raise ConfigError(
+            f"routes[{index}]: locale index {int(out[bad][0])} is out of range 0..{n_locales - 1}."
+        )
+    return out
+
+
+def check_routes(scenario: Scenario, routes: Sequence[Any]) -> list[np.ndarray]:
+    """Validate a tour and return its routes as ``intp`` arrays.
+
+    Parameters
+    ----------
+    scenario
+        The scenario the tour is for.
+    routes
+        One sequence of locale indices per platform (empty for an idle platform).
+
+    Raises
+    ------
+    ConfigError
+        Naming what is wrong: the number of routes, a route that is not a 1-D integer sequence, an index
+        out of range, a locale visited more than once or not at all.
+    """
+    if isinstance(routes, (str, bytes)) or not isinstance(routes, (Sequence, np.ndarray)):
+        raise ConfigError(f"routes: expected a sequence of routes, got {type(routes).__name__}.")
+    M, N = scenario.n_platforms, scenario.n_locales
+    if len(routes) != M:
+        raise ConfigError(f"routes: expected one route per platform ({M}), got {len(routes)}.")
+    out = [_as_route(m, r, N) for m, r in enumerate(routes)]
+    allidx = np.concatenate(out) if out else np.zeros(0, dtype=np.intp)
+    counts = np.bincount(allidx, minlength=N)
+    if np.any(counts > 1):
+        dup = int(np.flatnonzero(counts > 1)[0])
+        where = [m for m, r in enumerate(out) if np.any(r == dup)]
+        raise ConfigError(
+            f"routes: locale {dup} is visited {int(counts[dup])} times (routes {where}); "
+            "every locale must be in exactly one route."
+        )
+    if np.any(counts == 0):
+        missing = np.flatnonzero(counts == 0)
+        shown = ", ".join(str(int(i)) for i in missing[:10]) + (", ..." if missing.size > 10 else "")
+        raise ConfigError(
+            f"routes: {missing.size} locale(s) are in no route ({shown}); "
+            "every locale must be in exactly one route."
+        )
+    return out
+
+
+def route_costs(scenario: Scenario, routes: Sequence[Any]) -> np.ndarray:
+    """Distance flown by each platform: start to first locale plus the legs between locales.
+
+    Computed from coordinates (not from any distance matrix), after validating the tour with
+    :func:`check_routes`.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(M,)`` distances; 0 for an empty route.
+    """
+    checked = check_routes(scenario, routes)
+    starts = scenario.start_positions
+    out = np.zeros(len(checked))
+    for m, route in enumerate(checked):
+        if route.size:
+            pts = np.vstack([starts[m : m + 1], scenario.locales[route]])
+            out[m] = float(np.hypot(*np.diff(pts, axis=0).T).sum())
+    return out
+
+
+def tour_distance(scenario: Scenario, routes: Sequence[Any]) -> float:
+    """Total distance of a tour, validating it first (see :func:`check_routes` for the errors)."""
+    return float(route_costs(scenario, routes).sum())
+
+
+@dataclass
+class TourResult:
+    """An ordering of the locales: one route per platform, and what it costs.
+
+    Attributes
+    ----------
+    routes
+        One ``intp`` array of locale indices per platform, in visiting order; route ``m`` starts at
+        platform ``m``'s start.
+    total_distance
+        Sum over platforms of start-to-first-locale plus consecutive legs (no return), in scenario units,
+        recomputed in floating point from the routes.
+    history
+        Best cost found after each iteration (GA), or the costs of the successive improving solutions
+        (OR-Tools); never increasing.
+    wall_time
+        Seconds spent in the solver call.
+    method
+        ``"ga"``, ``"ortools"`` or ``"given"``.
+    scenario
+        The scenario solved (used by :meth:`validate` and :meth:`plot`).
+    extras
+        Solver-specific details (parameters used, status, ...).
+    """
+
+    routes: list[np.ndarray]
+    total_distance: float
+    history: np.ndarray
+    wall_time: float
+    method: str
+    scenario: Scenario | None = field(default=None, repr=False)
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def from_routes(cls, scenario: Scenario, routes: Sequence[Any], method: str = "given") -> TourResult:
+        """Wrap a user-supplied tour, validating it and computing its distance."""
+        checked = check_routes(scenario, routes)
+        dist = tour_distance(scenario, checked)
+        return cls(checked, dist, np.array([dist]), 0.0, method, scenario)
+
+    @property
+    def n_platforms(self) -> int:
+        """``M``: number of routes."""
+        return len(self.routes)
+
+    @property
+    def n_locales(self) -> int:
+        """``N``: number of locales visited."""
+        return int(sum(r.size for r in self.routes))
+
+    @property
+    def n_iterations(self) -> int:
+        """Entries of :attr:`history`."""
+        return int(self.history.shape[0])
+
+    @property
+    def route_lengths(self) -> np.ndarray:
+        """``(M,)`` number of locales in each route."""
+        return np.array([r.size for r in self.routes], dtype=np.intp)
+
+    @property
+    def route_distances(self) -> np.ndarray:
+        """``(M,)`` distance flown by each platform (needs :attr:`scenario`)."""
+        return route_costs(self._scenario(None), self.routes)
+
+    @property
+    def assignment(self) -> np.ndarray:
+        """``(N,)`` platform of each locale."""
+        out = np.empty(self.n_locales, dtype=np.intp)
+        for m, r in enumerate(self.routes):
+            out[r] = m
+        return out
+
+    @property
+    def order(self) -> np.ndarray:
+        """``(N,)`` position (0-based) of each locale within its route."""
+        out = np.empty(self.n_locales, dtype=np.intp)
+        for r in self.routes:
+            out[r] = np.arange(r.size)
+        return out
+
+    def _scenario(self, scenario: Scenario | None) -> Scenario:
+        sc = scenario if scenario is not None else self.scenario
+        if sc is None:
+            raise ConfigError("scenario: this TourResult holds no scenario; pass one.")
+        return sc
+
+    def validate(self, scenario: Scenario | None = None, min_tour: int = 0) -> None:
+        """Check the tour against a scenario without trusting the solver.
+
+        Every locale must be in exactly one route, each route must hold at least ``min_tour`` locales,
+        and :attr:`total_distance` must equal the distance recomputed from coordinates (relative
+        tolerance :data:`DISTANCE_RTOL`).
+
+        Raises
+        ------
+        ConfigError
+            A malformed tour (see :func:`check_routes`) or a route shorter than ``min_tour``.
+        SolverError
+            A stored distance that disagrees with the recomputation.
+        """
+        sc = self._scenario(scenario)
+        recomputed = tour_distance(sc, self.routes)
+        short = [m for m, r in enumerate(self.routes) if len(r) < min_tour]
+        if short:
+            raise ConfigError(f"routes: route(s) {short} hold fewer than min_tour={min_tour} locales.")
+        if not np.isclose(self.total_distance, recomputed, rtol=DISTANCE_RTOL, atol=0.0):
+            raise SolverError(
+                f"total_distance {self.total_distance!r} disagrees with the recomputed {recomputed!r}.",
+                backend=self.method,
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-Python form (lists and floats), e.g. for JSON."""
+        return {
+            "method": self.method,
+            "total_distance": self.total_distance,
+            "wall_time": self.wall_time,
+            "routes": [r.tolist() for r in self.routes],
+            "history_last": float(self.history[-1]) if self.history.size else None,
+            "n_iterations": self.n_iterations,
+        }
+
+    def plot(self, path: str | Path, scenario: Scenario | None = None, title: str | None = None) -> Path:
+        """Write a PNG of the starts (boxes), locales (crosses) and routes (one colour per platform)."""
+        from pmht_opt.plotting import _pyplot
+
+        sc = self._scenario(scenario)
+        check_routes(sc, self.routes)
+        plt = _pyplot()
+        fig, ax = plt.subplots(figsize=(5.5, 5.5))
+        try:
+            starts = sc.start_positions
+            xmin, xmax, ymin, ymax = sc.bounds  # type: ignore[misc]
+            ax.add_patch(
+                plt.Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, ls=":", lw=0.8, ec="0.5")
+            )
+            for m, route in enumerate(self.routes):
+                colour = f"C{m % 10}"
+                pts = np.vstack([starts[m : m + 1], sc.locales[route]])
+                ax.plot(pts[:, 0], pts[:, 1], "-", color=colour, lw=1.3, label=f"platform {m + 1}")
+                ax.plot(pts[1:, 0], pts[1:, 1], "x", color=colour, ms=5, mew=1.2)
+            ax.plot(starts[:, 0], starts[:, 1], "s", mfc="none", mec="c", ms=9, mew=2.0, label="starts")
+            ax.set_xlabel("X Position")
+            ax.set_ylabel("Y Position")
+            ax.set_aspect("equal", adjustable="datalim")
+            label = title if title is not None else f"{self.method}: total distance {self.total_distance:.2f}"
+            ax.set_title(label, fontsize=9)
+            ax.legend(fontsize=7, loc="best")
+            fig.tight_layout()
+            out = Path(path)
+            out.parent.mkdir(parents=True, exist_ok=True)
+            fig.savefig(out, dpi=120)
+        finally:
+            plt.close(fig)
+        return out
+
+
+def _check_int(name: str, value: Any, minimum: int) -> int:
+    """An integer parameter ``>= minimum`` or ConfigError naming it."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ConfigError(f"{name}: expected an integer >= {minimum}, got {value!r}.")
+    if int(value) < minimum:
+        raise ConfigError(f"{name}: expected an integer >= {minimum}, got {int(value)}.")
+    return int(value)
+
+
+def check_min_tour(scenario: Scenario, min_tour: Any) -> int:
+    """``min_tour`` as an int, checked against the scenario (``min_tour * M <= N``)."""
+    value = _check_int("min_tour", min_tour, 1)
+    M, N = scenario.n_platforms, scenario.n_locales
+    if value * M > N:
+        raise ConfigError(
+            f"min_tour: {M} platforms with at least {value} locales each need >= {value * M} locales, "
+            f"the scenario has {N}."
+        )
+    return value
