@@ -36,6 +36,8 @@ import numpy as np
 import scipy.sparse as sp
 
 import solvers
+from pmht_opt.constraints.assemble import ExtraRows, Imposed, assemble
+from pmht_opt.constraints.base import Constraint, ConstraintContext
 from pmht_opt.exceptions import ConfigError, InfeasibleError, SolverError, UnknownSolverError
 from pmht_opt.model import PX, PY, STATE_DIM, MotionModel
 from pmht_opt.scenario import Scenario
@@ -67,6 +69,7 @@ class MStepData:
     W: np.ndarray
     WZ: np.ndarray
     r: float
+    ctx: ConstraintContext | None = None
 
     def synthetic(self) -> tuple[np.ndarray, np.ndarray]:
         """Synthetic measurements ``WZ / W`` (zero where ``W == 0``) and their weights ``W``."""
@@ -104,18 +107,34 @@ class MStep(abc.ABC):
         scenario: Scenario,
         settings: dict[str, Any] | None = None,
         accept_inaccurate: bool = False,
+        constraints: tuple[Constraint, ...] = (),
     ) -> None:
         self.scenario = scenario
+        self.constraints = tuple(constraints)
         self.model = scenario.model
         self.settings = dict(settings or {})
         self.accept_inaccurate = accept_inaccurate
         self.T = scenario.horizon
         self.M = scenario.n_platforms
         self.x0 = scenario.initial_states
+        #: Whether the backend takes second-order cones (else constraints give inner polygons).
+        self.conic = True
 
     @abc.abstractmethod
     def solve(self, data: MStepData) -> MStepOutput:
-        """Minimise ``J`` for these weights."""
+        """Minimise ``J`` for these weights, subject to the constraints active in ``data.ctx``."""
+
+    def imposed(self, ctx: ConstraintContext | None) -> dict[int, list[Imposed]]:
+        """Blocks of the constraints active at ``ctx.iteration``, per platform."""
+        out: dict[int, list[Imposed]] = {}
+        if ctx is None:
+            return out
+        for con in self.constraints:
+            if not con.active(ctx.iteration, ctx.max_iter):
+                continue
+            for blk in con.blocks(ctx):
+                out.setdefault(blk.platform, []).append(Imposed.of(blk, con))
+        return out
 
     def close(self) -> None:  # noqa: B027 - most backends hold nothing to release
         """Release threads or solver workspaces held by this backend."""
@@ -216,6 +235,11 @@ def dynamics_rows(model: MotionModel, layout: QPLayout, x0: np.ndarray) -> tuple
 class PlatformQP:
     """The M-step QP of one platform: built once, its weights updated in place each iteration.
 
+    Constraint rows (:mod:`pmht_opt.constraints`) go below the dynamics, soft constraints' slacks after
+    the platform's own variables. While their structure stays the same from one iteration to the next
+    (speed limits, area bounds, obstacle half-planes) only the numbers are pushed to the backend; when
+    it changes (a visit moves to another time step) the backend session is set up afresh.
+
     The backend session is created at the first solve, with real weights: both backends compute
     their scaling (equilibration) at setup, and a setup with every position weight at zero leaves
     Clarabel badly scaled for every later update (measured: 5 IPM iterations and 7e-6 errors instead
@@ -236,6 +260,8 @@ class PlatformQP:
         t_idx = np.arange(1, horizon + 1)
         self.px = lay.x(0, t_idx, PX)
         self.py = lay.x(0, t_idx, PY)
+        #: QP column of each entry of the stacked states ``(x_1, ..., x_T)``.
+        self.col_map = lay.x(0, t_idx[:, None], np.arange(STATE_DIM)).ravel()
         diag = np.zeros(lay.n)
         stored = np.zeros(lay.n, dtype=bool)
         stored[self.px] = True
@@ -245,33 +271,75 @@ class PlatformQP:
         diag[u_idx] = 1.0
         self.diag = diag
         self.stored = np.flatnonzero(stored)
-        # CSC arrays by hand so the position entries stay stored while their weight is zero.
-        indptr = np.concatenate([[0], np.cumsum(stored)])
-        P = sp.csc_matrix((diag[self.stored], self.stored, indptr), shape=(lay.n, lay.n))
-        A, b = dynamics_rows(model, lay, x0[None, :])
-        self.problem = solvers.QPProblem(P=P, q=np.zeros(lay.n), A=A, b=b, cones=(solvers.Zero(A.shape[0]),))
+        self.A_dyn, self.b_dyn = dynamics_rows(model, lay, x0[None, :])
+        self.problem: solvers.QPProblem | None = None
         self.session: solvers.QPSession | None = None
+        self.extra: ExtraRows | None = None
+        self._key: tuple[object, ...] | None = None
 
-    def solve(self, W: np.ndarray, WZ: np.ndarray, r: float) -> solvers.QPSolution:
-        """Solve for weights ``W (T,)`` and weighted locale sums ``WZ (T, 2)``."""
+    def _P(self, n_slack: int) -> sp.csc_matrix:
+        # CSC arrays by hand so the position entries stay stored while their weight is zero; slack
+        # columns (if any) are empty.
+        n = self.layout.n
+        stored = np.zeros(n, dtype=bool)
+        stored[self.stored] = True
+        indptr = np.concatenate([[0], np.cumsum(stored), np.full(n_slack, stored.sum())])
+        return sp.csc_matrix((self.diag[self.stored], self.stored, indptr), shape=(n + n_slack, n + n_slack))
+
+    def _cost(self, W: np.ndarray, WZ: np.ndarray, r: float, extra: ExtraRows | None) -> np.ndarray:
         scale = 1.0 / r
         self.diag[self.px] = W * scale
         self.diag[self.py] = W * scale
         q = np.zeros(self.layout.n)
         q[self.px] = -WZ[:, 0] * scale
         q[self.py] = -WZ[:, 1] * scale
-        if self.session is None:
-            self.problem.P.data[:] = self.diag[self.stored]
-            self.problem.q = q
+        return q if extra is None or extra.n_slack == 0 else np.concatenate([q, extra.slack_cost])
+
+    def _constraints(
+        self, extra: ExtraRows | None
+    ) -> tuple[sp.csc_matrix, np.ndarray, tuple[solvers.Cone, ...]]:
+        zero = solvers.Zero(self.A_dyn.shape[0])
+        if extra is None:
+            return self.A_dyn, self.b_dyn, (zero,)
+        A_dyn = self.A_dyn
+        if extra.n_slack:
+            indptr = np.concatenate([A_dyn.indptr, np.full(extra.n_slack, A_dyn.indptr[-1])])
+            A_dyn = sp.csc_matrix(
+                (A_dyn.data, A_dyn.indices, indptr), shape=(A_dyn.shape[0], extra.A.shape[1])
+            )
+        A = sp.vstack([A_dyn, extra.A], format="csc")
+        A.sort_indices()
+        return A, np.concatenate([self.b_dyn, extra.b]), (zero, *extra.cones)
+
+    def solve(
+        self, W: np.ndarray, WZ: np.ndarray, r: float, imposed: list[Imposed] | None = None
+    ) -> solvers.QPSolution:
+        """Solve for weights ``W (T,)``, weighted locale sums ``WZ (T, 2)`` and constraint blocks."""
+        extra = assemble(imposed, self.layout.n, self.col_map) if imposed else None
+        self.extra = extra
+        key = None if extra is None else (extra.n_slack, *extra.pattern_key())
+        q = self._cost(W, WZ, r, extra)
+        A, b, cones = self._constraints(extra)
+        if self.session is None or key != self._key:
+            self._key = key
+            self.problem = solvers.QPProblem(
+                P=self._P(0 if extra is None else extra.n_slack), q=q, A=A, b=b, cones=cones
+            )
             try:
                 self.session = self.session_class(self.problem, **self.settings)
             except solvers.SettingsError as err:
                 raise ConfigError(f"solver_settings: {err}") from err
             except solvers.QPError as err:
                 raise SolverError(f"cannot set up the M-step QP: {err}") from err
-        else:
+        elif extra is None:
             self.session.update(P_data=self.diag[self.stored], q=q)
+        else:
+            self.session.update(P_data=self.diag[self.stored], q=q, A_data=A.data, b=b)
         return self.session.solve()
+
+    def slacks(self, x: np.ndarray) -> np.ndarray:
+        """The soft constraints' slack values in a solution vector."""
+        return x[self.layout.n :]
 
 
 class QPMStep(MStep):
@@ -279,7 +347,8 @@ class QPMStep(MStep):
 
     Without coupling constraints the QP separates by platform, so each platform is its own QP
     (:class:`PlatformQP`), and the platforms are solved concurrently on ``threads`` threads (both
-    backends release the GIL while they solve).
+    backends release the GIL while they solve). Every constraint kind binds one platform at a time,
+    so constraints keep this separation.
     """
 
     name: ClassVar[str] = "qp"
@@ -291,30 +360,35 @@ class QPMStep(MStep):
         accept_inaccurate: bool = False,
         solver: str = "clarabel",
         threads: int = 1,
+        constraints: tuple[Constraint, ...] = (),
     ) -> None:
-        super().__init__(scenario, settings, accept_inaccurate)
+        super().__init__(scenario, settings, accept_inaccurate, constraints)
         self.solver = solver
         try:
             session_class = solvers.get_session_class(solver)
         except solvers.UnknownSolverError as err:
             raise UnknownSolverError(str(err)) from err
-        options = {**BACKEND_DEFAULTS.get(solver, {}), **self.settings}
+        self.session_class = session_class
+        self.conic = session_class.supports_soc
+        self.options = {**BACKEND_DEFAULTS.get(solver, {}), **self.settings}
         self.blocks = [
-            PlatformQP(self.model, self.x0[m], self.T, session_class, options) for m in range(self.M)
+            PlatformQP(self.model, self.x0[m], self.T, session_class, self.options) for m in range(self.M)
         ]
         self.threads = max(1, min(int(threads), self.M))
         self._pool: ThreadPoolExecutor | None = None
 
     def solve(self, data: MStepData) -> MStepOutput:
-        # A platform with no weight at all has the unique answer u = 0 (it coasts from its start);
-        # first-order solvers struggle on this degenerate QP (its dual residual has no scale), so the
-        # answer is written down instead of solved for. Valid because these QPs have no constraints
-        # other than the dynamics.
+        imposed = self.imposed(data.ctx)
+        # A platform with no weight and no constraint has the unique answer u = 0 (it coasts from its
+        # start); first-order solvers struggle on this degenerate QP (its dual residual has no scale),
+        # so the answer is written down instead of solved for.
         idle = ~np.any(data.W > 0, axis=0)
+        for m in imposed:
+            idle[m] = False
         active = [int(m) for m in np.flatnonzero(~idle)]
 
         def one(m: int) -> solvers.QPSolution:
-            return self.blocks[m].solve(data.W[:, m], data.WZ[:, m], data.r)
+            return self.blocks[m].solve(data.W[:, m], data.WZ[:, m], data.r, imposed.get(m))
 
         if self.threads > 1 and len(active) > 1:
             if self._pool is None:
@@ -326,9 +400,11 @@ class QPMStep(MStep):
         for m in np.flatnonzero(idle).tolist():
             body[m] = self.model.propagate(self.x0[m], self.T)[1:]
         for m, sol in zip(active, sols, strict=True):
+            if sol.status in solvers.INFEASIBLE and imposed.get(m):
+                raise self._diagnose(m, data, imposed[m], sol)
             check_solution(sol, self.accept_inaccurate, platform=m)
             assert sol.x is not None
-            body[m] = self.blocks[m].layout.states(sol.x)[0]
+            body[m] = self.blocks[m].layout.states(sol.x[: self.blocks[m].layout.n])[0]
         status = "optimal"
         if sols:
             status = max(
@@ -340,10 +416,58 @@ class QPMStep(MStep):
             status=status,
         )
 
+    def _diagnose(
+        self, m: int, data: MStepData, imposed: list[Imposed], sol: solvers.QPSolution
+    ) -> InfeasibleError:
+        """Name the constraints that cannot be met on platform ``m``: re-solve with every block soft and
+        see which slacks stay positive."""
+        probe = PlatformQP(self.model, self.x0[m], self.T, self.session_class, self.options)
+        names = sorted({i.name for i in imposed if not i.soft})
+        where = f"platform {m}: the constraints {', '.join(names)} cannot all be met"
+        try:
+            relaxed = probe.solve(
+                data.W[:, m], data.WZ[:, m], data.r, [i.relaxed(DIAGNOSIS_WEIGHT) for i in imposed]
+            )
+        except (SolverError, ConfigError):
+            relaxed = None
+        if relaxed is None or relaxed.x is None or probe.extra is None:
+            return InfeasibleError(
+                f"{sol.backend}: {where} (status {sol.raw_status}).", sol.backend, sol.raw_status
+            )
+        slack = probe.slacks(relaxed.x)
+        culprits: dict[str, list[tuple[int, str | None, float]]] = {}
+        for value, owner in zip(slack, probe.extra.slack_owner, strict=True):
+            if value > 1e-6:
+                culprits.setdefault(owner.constraint, []).append((owner.time, owner.label, float(value)))
+        if not culprits:
+            return InfeasibleError(
+                f"{sol.backend}: {where} (status {sol.raw_status}).", sol.backend, sol.raw_status
+            )
+        parts = []
+        for name, hits in sorted(culprits.items(), key=lambda kv: -max(h[2] for h in kv[1])):
+            times = sorted({h[0] for h in hits})
+            labels = sorted({h[1] for h in hits if h[1]}, key=lambda s: (len(s), s))
+            what = f"{name} on platform {m}"
+            span = (
+                f"t = {times[0]}" if len(times) == 1 else f"{len(times)} steps in t = {times[0]}..{times[-1]}"
+            )
+            if labels:
+                span += " (" + ", ".join(labels[:5]) + (", ..." if len(labels) > 5 else "") + ")"
+            parts.append(f"{what} at {span}, short by up to {max(h[2] for h in hits):.3g}")
+        return InfeasibleError(
+            f"{sol.backend}: infeasible constraints: " + "; ".join(parts) + ". Relax them or pass soft=True.",
+            sol.backend,
+            sol.raw_status,
+        )
+
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
+
+
+#: Penalty weight of the soft re-solve that locates infeasible constraints.
+DIAGNOSIS_WEIGHT = 1e6
 
 
 def check_solution(sol: solvers.QPSolution, accept_inaccurate: bool, platform: int | None = None) -> None:
@@ -371,6 +495,10 @@ class CvxpyMStep(MStep):
     ``settings`` may hold ``cvxpy_solver`` (default ``"CLARABEL"``); the rest goes to
     ``cvxpy.Problem.solve``. The variables are exposed as :attr:`states` (one ``(T, 6)`` cvxpy variable
     per platform, rows ``t = 1..T``) and :attr:`noise`.
+
+    Constraint blocks become cvxpy rows whose coefficients are parameters too, so a block whose
+    structure is unchanged from the last iteration (speed limits, obstacle half-planes) costs no
+    recompilation; :class:`~pmht_opt.constraints.CvxpyConstraint` s are built once with the problem.
     """
 
     name: ClassVar[str] = "cvxpy"
@@ -380,10 +508,12 @@ class CvxpyMStep(MStep):
         scenario: Scenario,
         settings: dict[str, Any] | None = None,
         accept_inaccurate: bool = False,
+        constraints: tuple[Constraint, ...] = (),
     ) -> None:
-        super().__init__(scenario, settings, accept_inaccurate)
+        super().__init__(scenario, settings, accept_inaccurate, constraints)
         import cvxpy as cp
 
+        from pmht_opt.constraints.user import CvxpyConstraint, CvxpyVariables
         from solvers.cvxpy_ import DEFAULT_SOLVER, check_solver_name
 
         opts = dict(self.settings)
@@ -396,24 +526,88 @@ class CvxpyMStep(MStep):
         F, L = self.model.F, self.model.L
         self.states = [cp.Variable((T, STATE_DIM), name=f"x{m}") for m in range(M)]
         self.noise = [cp.Variable((T, STATE_DIM), name=f"u{m}") for m in range(M)]
+        self._stacked = [cp.reshape(X, (T * STATE_DIM,), order="C") for X in self.states]
         self._sqrt_w = cp.Parameter((T, M), nonneg=True, name="sqrt_w_over_r")
         self._lin = cp.Parameter((T, 2 * M), name="wz_over_r")
         cost = 0
-        constraints = []
+        rows: list[Any] = []
         for m in range(M):
             X, U = self.states[m], self.noise[m]
-            constraints.append(X[0] == F @ self.x0[m] + L @ U[0])
-            constraints.append(X[1:] == X[:-1] @ F.T + U[1:] @ L.T)
+            rows.append(X[0] == F @ self.x0[m] + L @ U[0])
+            rows.append(X[1:] == X[:-1] @ F.T + U[1:] @ L.T)
             cost += 0.5 * cp.sum_squares(U)
             cost += 0.5 * cp.sum_squares(cp.multiply(self._sqrt_w[:, m], X[:, PX]))
             cost += 0.5 * cp.sum_squares(cp.multiply(self._sqrt_w[:, m], X[:, PY]))
             cost -= self._lin[:, 2 * m] @ X[:, PX] + self._lin[:, 2 * m + 1] @ X[:, PY]
-        self.constraints = constraints
+        variables = CvxpyVariables.of(self.states, scenario.dt)
+        for con in self.constraints:
+            if isinstance(con, CvxpyConstraint):
+                hard, penalty = con.build(variables)
+                rows.extend(hard)
+                cost += penalty
+        self._base_cost = cost
+        self._base_constraints = rows
+        self._key: tuple[object, ...] | None = None
+        self._params: list[tuple[Any, Any]] = []
+        self.problem = cp.Problem(cp.Minimize(cost), rows)
+
+    def _rebuild(self, imposed: list[Imposed]) -> None:
+        """A new cvxpy problem for blocks of a new structure; their numbers are parameters."""
+        import cvxpy as cp
+
+        cost = self._base_cost
+        constraints: list[Any] = list(self._base_constraints)
+        self._params = []
+        for item in imposed:
+            blk = item.block
+            G = blk.G.tocsr()
+            G.sort_indices()
+            k = G.shape[0]
+            coeff = cp.Parameter(G.nnz)
+            rhs = cp.Parameter(k)
+            self._params.append((coeff, rhs))
+            rows = np.repeat(np.arange(k), np.diff(G.indptr))
+            summer = sp.csr_matrix((np.ones(G.nnz), (rows, np.arange(G.nnz))), shape=(k, G.nnz))
+            z = self._stacked[blk.platform]
+            e = rhs - summer @ cp.multiply(coeff, z[G.indices])
+            slack = cp.Variable(blk.units, nonneg=True) if item.soft else None
+            if slack is not None:
+                cost += item.weight * cp.sum(slack)
+            if blk.kind == "zero":
+                constraints += [e == 0] if slack is None else [e <= slack, -e <= slack]
+            elif blk.kind == "nonneg":
+                constraints += [e >= 0] if slack is None else [e + slack >= 0]
+            else:
+                E = cp.reshape(e, (blk.units, blk.dim), order="C")
+                head = E[:, 0] if slack is None else E[:, 0] + slack
+                constraints.append(cp.SOC(head, E[:, 1:], axis=1))
         self.problem = cp.Problem(cp.Minimize(cost), constraints)
 
     def solve(self, data: MStepData) -> MStepOutput:
         from solvers.cvxpy_ import solve_cvxpy_problem
 
+        imposed = [i for items in self.imposed(data.ctx).values() for i in items]
+        key = tuple(
+            (
+                i.block.platform,
+                i.block.kind,
+                i.block.dim,
+                i.soft,
+                i.weight,
+                i.block.G.shape,
+                i.block.G.indptr.tobytes(),
+                i.block.G.indices.tobytes(),
+            )
+            for i in imposed
+        )
+        if key != self._key:
+            self._rebuild(imposed)
+            self._key = key
+        for item, (coeff, rhs) in zip(imposed, self._params, strict=True):
+            G = item.block.G.tocsr()
+            G.sort_indices()
+            coeff.value = G.data
+            rhs.value = item.block.h
         self._sqrt_w.value = np.sqrt(np.maximum(data.W, 0.0) / data.r)
         self._lin.value = (data.WZ / data.r).reshape(self.T, 2 * self.M)
         status, raw, _elapsed, iters = solve_cvxpy_problem(
@@ -434,6 +628,14 @@ class CvxpyMStep(MStep):
             x=None if x is None else x.ravel(),
             iterations=iters,
         )
+        if sol.status in solvers.INFEASIBLE and self.constraints:
+            names = sorted({c.name for c in self.constraints if not c.soft})
+            raise InfeasibleError(
+                f"{sol.backend}: the constraints {', '.join(names)} cannot all be met (status {raw}); "
+                "the clarabel backend names the platform and time steps. Relax them or pass soft=True.",
+                backend=sol.backend,
+                status=raw,
+            )
         check_solution(sol, self.accept_inaccurate)
         assert x is not None
         return MStepOutput(states=self._with_start(x), iterations=iters, status=raw)
@@ -459,6 +661,7 @@ def make_mstep(
     settings: dict[str, Any] | None = None,
     accept_inaccurate: bool = False,
     threads: int = 1,
+    constraints: tuple[Constraint, ...] = (),
 ) -> MStep:
     """Build the M-step backend ``solver`` for ``scenario``.
 
@@ -475,10 +678,18 @@ def make_mstep(
             f"Solver {solver!r} needs the package {MSTEP_BACKENDS[key]!r}, which is not installed; "
             f"available: {', '.join(available_backends())}."
         )
+    for con in constraints:
+        if key not in con.backends:
+            raise ConfigError(
+                f"constraints: {con.name} cannot be imposed by the {key} backend; "
+                f"use one of {', '.join(sorted(con.backends))}."
+            )
     if key == "kalman":
         if settings:
             raise ConfigError(f"solver_settings: the kalman backend takes none, got {sorted(settings)}.")
         return KalmanMStep(scenario, accept_inaccurate=accept_inaccurate)
     if key == "cvxpy":
-        return CvxpyMStep(scenario, settings, accept_inaccurate)
-    return QPMStep(scenario, settings, accept_inaccurate, solver=key, threads=threads)
+        return CvxpyMStep(scenario, settings, accept_inaccurate, tuple(constraints))
+    return QPMStep(
+        scenario, settings, accept_inaccurate, solver=key, threads=threads, constraints=tuple(constraints)
+    )

@@ -13,15 +13,16 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from pmht_opt.constraints.base import Constraint, ConstraintContext
 from pmht_opt.estep import EStepResult, estep, safe_log
 from pmht_opt.exceptions import ConfigError, ScenarioError, UnknownSolverError
-from pmht_opt.model import POS
+from pmht_opt.model import POS, STATE_DIM
 from pmht_opt.mstep import MSTEP_BACKENDS, MStep, MStepData, available_backends, make_mstep
 from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario
@@ -58,6 +59,11 @@ class PMHTConfig:
     threads
         Threads for the per-platform QPs of ``osqp`` and ``clarabel``; ``None`` uses one per core up to
         the number of platforms. Use 1 inside process-parallel Monte Carlo runs.
+    constraints
+        Constraints on the paths (:mod:`pmht_opt.constraints`), imposed in every M-step; the returned
+        plan meets them (hard) or reports how far it misses them (soft), see
+        :meth:`PlanResult.constraint_reports`. Not available with ``solver="kalman"``. With constraints
+        the EM objective is no longer guaranteed to increase.
     """
 
     solver: str = "clarabel"
@@ -69,6 +75,7 @@ class PMHTConfig:
     accept_inaccurate: bool = False
     snapshots: tuple[int, ...] = ()
     threads: int | None = None
+    constraints: Sequence[Constraint] = ()
 
     def __post_init__(self) -> None:
         self.solver = str(self.solver).lower()
@@ -102,6 +109,24 @@ class PMHTConfig:
             ):
                 raise ConfigError(f"threads: expected a positive integer or None, got {self.threads!r}.")
             self.threads = int(self.threads)
+        if isinstance(self.constraints, Constraint):
+            self.constraints = (self.constraints,)
+        try:
+            self.constraints = tuple(self.constraints)
+        except TypeError:
+            raise ConfigError(
+                f"constraints: expected a list of constraints, got {type(self.constraints).__name__}."
+            ) from None
+        for con in self.constraints:
+            if not isinstance(con, Constraint):
+                raise ConfigError(
+                    f"constraints: expected pmht_opt.constraints objects, got {type(con).__name__}."
+                )
+            if self.solver not in con.backends:
+                raise ConfigError(
+                    f"constraints: {con.name} cannot be imposed by the {self.solver} backend; "
+                    f"use one of {', '.join(sorted(con.backends))}."
+                )
         self.snapshots = tuple(int(s) for s in self.snapshots)
         if any(s < 0 for s in self.snapshots):
             raise ConfigError(f"snapshots: iterations must be >= 0, got {self.snapshots}.")
@@ -136,6 +161,22 @@ def _initial_log_prior(name: str, prior: np.ndarray | None, shape: tuple[int, in
     return safe_log(arr / sums[:, None])
 
 
+def _initial_paths(scenario: Scenario, paths: np.ndarray | None) -> np.ndarray:
+    x0 = scenario.initial_states
+    M, T = scenario.n_platforms, scenario.horizon
+    if paths is None:
+        # Every platform standing still at its start (SPEC section 2).
+        return np.repeat(x0[:, None, :], T + 1, axis=1)
+    arr = np.asarray(paths, dtype=float)
+    if arr.shape != (M, T + 1, STATE_DIM):
+        raise ScenarioError(f"initial_paths must have shape {(M, T + 1, STATE_DIM)}, got {arr.shape}.")
+    if not np.all(np.isfinite(arr)):
+        raise ScenarioError("initial_paths contains NaN or infinite values.")
+    if not np.allclose(arr[:, 0], x0):
+        raise ScenarioError("initial_paths must start (t = 0) at the scenario's start states.")
+    return arr.copy()
+
+
 def plan_pmht(
     scenario: Scenario,
     config: PMHTConfig | None = None,
@@ -143,6 +184,7 @@ def plan_pmht(
     time_prior: np.ndarray | None = None,
     platform_prior: np.ndarray | None = None,
     callback: ProgressCallback | None = None,
+    initial_paths: np.ndarray | None = None,
 ) -> PlanResult:
     """Plan paths for ``scenario`` with the PMHT planner.
 
@@ -156,6 +198,9 @@ def plan_pmht(
         Initial ``pi^tau (N, T)`` and ``pi^k (N, M)``; uniform when ``None``. Rows are normalised.
     callback
         Called as ``callback(iteration, objective)`` after every iteration (e.g. a progress bar).
+    initial_paths
+        ``(M, T+1, 6)`` paths the EM starts from (``t = 0`` must be the scenario's start states);
+        default: every platform standing still at its start.
 
     Returns
     -------
@@ -170,11 +215,16 @@ def plan_pmht(
     N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon
     log_tau = _initial_log_prior("time_prior", time_prior, (N, T))
     log_k = _initial_log_prior("platform_prior", platform_prior, (N, M))
+    start_paths = _initial_paths(scenario, initial_paths)
+    for con in cfg.constraints:
+        con.check_scenario(scenario)
     started = time.perf_counter()
     threads = cfg.threads if cfg.threads is not None else min(M, os.cpu_count() or 1)
-    mstep = make_mstep(scenario, cfg.solver, cfg.solver_settings, cfg.accept_inaccurate, threads)
+    mstep = make_mstep(
+        scenario, cfg.solver, cfg.solver_settings, cfg.accept_inaccurate, threads, tuple(cfg.constraints)
+    )
     try:
-        return _run_em(scenario, cfg, mstep, log_tau, log_k, callback, started)
+        return _run_em(scenario, cfg, mstep, log_tau, log_k, callback, started, start_paths)
     finally:
         mstep.close()
 
@@ -187,13 +237,13 @@ def _run_em(
     log_k: np.ndarray | None,
     callback: ProgressCallback | None,
     started: float,
+    start_paths: np.ndarray,
 ) -> PlanResult:
-    N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon
+    N, M = scenario.n_locales, scenario.n_platforms
     model = scenario.model
     r = scenario.r
 
-    # Start from every platform standing still at its start (SPEC section 2).
-    states = np.repeat(scenario.initial_states[:, None, :], T + 1, axis=1)
+    states = start_paths
     objective: list[float] = []
     e_times: list[float] = []
     m_times: list[float] = []
@@ -216,8 +266,11 @@ def _run_em(
             log_tau = safe_log(es.time_prior())
         if cfg.update_platform_prior:
             log_k = safe_log(es.platform_prior())
+        ctx = ConstraintContext(
+            scenario=scenario, states=states, estep=es, iteration=it, max_iter=cfg.max_iter, conic=mstep.conic
+        )
         t0 = time.perf_counter()
-        out = mstep.solve(MStepData(W=es.W, WZ=es.WZ, r=r))
+        out = mstep.solve(MStepData(W=es.W, WZ=es.WZ, r=r, ctx=ctx))
         m_times.append(time.perf_counter() - t0)
         solver_iters.append(out.iterations)
         states = out.states
@@ -229,7 +282,8 @@ def _run_em(
             snapshots[it] = states[:, :, POS].copy()
         if callback is not None:
             callback(it, obj)
-        if cfg.tol > 0:
+        warming_up = any(not c.active(it + 1, cfg.max_iter) for c in cfg.constraints)
+        if cfg.tol > 0 and not warming_up:
             prev = objective[-2]
             if abs(obj - prev) <= cfg.tol * max(abs(prev), 1e-300):
                 converged = True
@@ -252,4 +306,6 @@ def _run_em(
         wall_time=time.perf_counter() - started,
         solver=cfg.solver,
         snapshots=snapshots,
+        constraints=tuple(cfg.constraints),
+        constraint_context=ctx if cfg.constraints else None,
     )

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from pmht_opt.constraints.base import Constraint, ConstraintContext, ConstraintReport
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.geometry import count_crossings, point_polyline_distance
 from pmht_opt.model import ACC, POS, VEL
@@ -54,6 +55,11 @@ class PlanResult:
         ``(N, M)`` final ``pi^k``.
     history
         Per-iteration objective, timings and solver iterations.
+    constraints
+        The constraints the plan was made under.
+    constraint_context
+        The context of the last M-step (its linearisation point and E-step), against which
+        :meth:`constraint_reports` judges the constraints whose rows depend on the iterate.
     """
 
     scenario: Scenario
@@ -67,6 +73,8 @@ class PlanResult:
     solver: str = ""
     snapshots: dict[int, np.ndarray] = field(default_factory=dict)
     extras: dict[str, Any] = field(default_factory=dict)
+    constraints: tuple[Constraint, ...] = ()
+    constraint_context: ConstraintContext | None = None
 
     @property
     def positions(self) -> np.ndarray:
@@ -139,6 +147,17 @@ class PlanResult:
         dy = np.maximum(np.maximum(ymin - p[..., 1], p[..., 1] - ymax), 0.0)
         return float(np.max(np.hypot(dx, dy)))
 
+    def constraint_reports(self) -> list[ConstraintReport]:
+        """How each constraint holds on the returned paths, measured on the exact geometry."""
+        if not self.constraints or self.constraint_context is None:
+            return []
+        return [c.violation(self.states, self.constraint_context) for c in self.constraints]
+
+    @property
+    def max_violation(self) -> float:
+        """Largest violation of any constraint (0 without constraints or when all hold)."""
+        return max((r.max_violation for r in self.constraint_reports()), default=0.0)
+
     def metrics(self, radius: float = DEFAULT_RADIUS) -> dict[str, Any]:
         """The headline metrics as plain Python values (for tables and JSON)."""
         return {
@@ -158,6 +177,15 @@ class PlanResult:
             "final_objective": float(self.history.objective[-1]),
             "wall_time": float(self.wall_time),
             "solver": self.solver,
+            "constraints": {
+                r.name: {
+                    "soft": r.soft,
+                    "max_violation": r.max_violation,
+                    "violations": r.n_violations,
+                    **{k: v for k, v in r.details.items() if not isinstance(v, tuple)},
+                }
+                for r in self.constraint_reports()
+            },
         }
 
     def plot(self, path: str | Path, title: str | None = None, show_assignment: bool = False) -> Path:

@@ -1,0 +1,65 @@
+"""Keep every position inside an axis-aligned box."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from pmht_opt.constraints.base import Block, Constraint, ConstraintContext, state_rows
+from pmht_opt.exceptions import ConfigError, ScenarioError
+from pmht_opt.model import PX, PY
+
+if TYPE_CHECKING:
+    from pmht_opt.scenario import Scenario
+
+
+class AreaBounds(Constraint):
+    """``xmin <= px_t <= xmax`` and ``ymin <= py_t <= ymax`` for ``t = 1..T`` (four rows per step).
+
+    A platform starting outside the box raises :class:`~pmht_opt.exceptions.ScenarioError` before any
+    solve.
+    """
+
+    def __init__(self, xmin: float, xmax: float, ymin: float, ymax: float, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        try:
+            box = np.array([xmin, xmax, ymin, ymax], dtype=float)
+        except (TypeError, ValueError):
+            raise ConfigError("AreaBounds: expected four numbers xmin, xmax, ymin, ymax.") from None
+        if not np.all(np.isfinite(box)) or box[0] >= box[1] or box[2] >= box[3]:
+            raise ConfigError(f"AreaBounds: expected finite xmin < xmax and ymin < ymax, got {box.tolist()}.")
+        self.box = box
+
+    @classmethod
+    def of(cls, scenario: Scenario, margin: float = 0.0, **kwargs: Any) -> AreaBounds:
+        """The scenario's own area grown by ``margin``."""
+        if scenario.bounds is None:
+            raise ConfigError("AreaBounds.of: the scenario has no bounds; give them explicitly.")
+        xmin, xmax, ymin, ymax = scenario.bounds
+        return cls(xmin - margin, xmax + margin, ymin - margin, ymax + margin, **kwargs)
+
+    @property
+    def name(self) -> str:
+        return "AreaBounds({:g}, {:g}, {:g}, {:g})".format(*self.box)
+
+    def check_scenario(self, scenario: Scenario) -> None:
+        super().check_scenario(scenario)
+        xmin, xmax, ymin, ymax = self.box
+        for m in self.applies_to(scenario):
+            x, y = scenario.start_positions[m]
+            if not (xmin <= x <= xmax and ymin <= y <= ymax):
+                raise ScenarioError(
+                    f"platform {m} starts at ({x:g}, {y:g}), outside {self.name}; move the start or "
+                    "widen the bounds."
+                )
+
+    def blocks(self, ctx: ConstraintContext) -> list[Block]:
+        T = ctx.scenario.horizon
+        xmin, xmax, ymin, ymax = self.box
+        # Rows per step: px <= xmax, -px <= -xmin, py <= ymax, -py <= -ymin.
+        times = np.repeat(np.arange(1, T + 1), 4)
+        coeff = np.tile(np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]), (T, 1))
+        G = state_rows(T, times, np.array([PX, PY]), coeff)
+        h = np.tile(np.array([xmax, -xmin, ymax, -ymin]), T)
+        return [Block(m, "nonneg", G, h, times=times) for m in self.applies_to(ctx.scenario)]

@@ -1,0 +1,119 @@
+"""Conditions on the final state: a velocity (e.g. at rest) and/or a region to end in."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from pmht_opt.constraints.base import (
+    DEFAULT_SIDES,
+    Block,
+    Constraint,
+    ConstraintContext,
+    check_sides,
+    disc_block,
+    point_array,
+    positive_number,
+    state_rows,
+)
+from pmht_opt.exceptions import ConfigError
+from pmht_opt.model import AX, AY, PX, PY, VX, VY
+
+if TYPE_CHECKING:
+    from pmht_opt.scenario import Scenario
+
+
+class Terminal(Constraint):
+    """The state at ``t = T``: velocity, acceleration and/or position.
+
+    Parameters
+    ----------
+    velocity
+        Final velocity, ``(2,)`` for all platforms or ``(M, 2)``; ``(0, 0)`` ends at rest. ``None``
+        leaves it free.
+    position
+        Final position (``(2,)`` or ``(M, 2)``), met within ``radius``; ``None`` leaves it free.
+    radius
+        ``0`` makes the final position exact; otherwise a disc (a cone, or an inner polygon on OSQP).
+    acceleration
+        Final acceleration, like ``velocity``.
+    sides, soft, weight, platforms
+        See :class:`~pmht_opt.constraints.motion.SpeedLimit` and
+        :class:`~pmht_opt.constraints.base.Constraint`.
+    """
+
+    def __init__(
+        self,
+        velocity: Any = None,
+        position: Any = None,
+        radius: float = 0.0,
+        acceleration: Any = None,
+        sides: int = DEFAULT_SIDES,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(**kwargs)
+        if velocity is None and position is None and acceleration is None:
+            raise ConfigError("Terminal: give at least one of velocity, position, acceleration.")
+        self.velocity = None if velocity is None else self._points("velocity", velocity)
+        self.acceleration = None if acceleration is None else self._points("acceleration", acceleration)
+        self.position = None if position is None else self._points("position", position)
+        self.radius = positive_number("Terminal.radius", radius, allow_zero=True)
+        self.sides = check_sides("Terminal", sides)
+
+    @staticmethod
+    def _points(name: str, value: Any) -> np.ndarray:
+        arr = np.asarray(value, dtype=float) if not isinstance(value, str) else np.array([])
+        if arr.ndim == 1:
+            arr = point_array(f"Terminal.{name}", arr, (2,))[None, :]
+        return point_array(f"Terminal.{name}", arr, (-1, 2))
+
+    @property
+    def name(self) -> str:
+        parts = []
+        if self.velocity is not None:
+            parts.append("velocity")
+        if self.acceleration is not None:
+            parts.append("acceleration")
+        if self.position is not None:
+            parts.append("position" + (f" within {self.radius:g}" if self.radius > 0 else ""))
+        return f"Terminal({', '.join(parts)})"
+
+    def check_scenario(self, scenario: Scenario) -> None:
+        super().check_scenario(scenario)
+        for key in ("velocity", "acceleration", "position"):
+            arr = getattr(self, key)
+            if arr is not None and arr.shape[0] not in (1, scenario.n_platforms):
+                raise ConfigError(
+                    f"Terminal.{key}: {arr.shape[0]} rows given for {scenario.n_platforms} platforms."
+                )
+
+    def blocks(self, ctx: ConstraintContext) -> list[Block]:
+        T = ctx.scenario.horizon
+        end = np.array([T])
+        out = []
+        for m in self.applies_to(ctx.scenario):
+            for arr, comps in ((self.velocity, (VX, VY)), (self.acceleration, (AX, AY))):
+                if arr is not None:
+                    target = arr[0 if arr.shape[0] == 1 else m]
+                    G = state_rows(T, np.array([T, T]), np.array(comps), np.eye(2))
+                    out.append(Block(m, "zero", G, target, times=np.array([T, T])))
+            if self.position is not None:
+                target = self.position[0 if self.position.shape[0] == 1 else m]
+                if self.radius == 0:
+                    G = state_rows(T, np.array([T, T]), np.array([PX, PY]), np.eye(2))
+                    out.append(Block(m, "zero", G, target, times=np.array([T, T])))
+                else:
+                    out.append(
+                        disc_block(
+                            m,
+                            T,
+                            end,
+                            (PX, PY),
+                            target[None, :],
+                            np.array([self.radius]),
+                            ctx.conic,
+                            self.sides,
+                        )
+                    )
+        return out
