@@ -9,7 +9,9 @@ i.e. a relative rounding error of about 1e-9 per arc. The reported distance is r
 point from the routes, never taken from the integer objective.
 
 ``min_tour`` is a counting dimension: every arc adds 1, so the cumul at a vehicle's end is its number of
-locales plus one, and is constrained to ``>= min_tour + 1``.
+locales plus one, and should be ``>= min_tour + 1``. The bound is soft, with a price per missing locale
+above the cost of any tour, so that the first-solution heuristics always succeed and the local search
+drives the shortfall to zero; a final answer still short raises SolverError.
 """
 
 from __future__ import annotations
@@ -69,6 +71,11 @@ def _choice(name: str, value: Any, allowed: tuple[str, ...]) -> str:
     if not isinstance(value, str) or key not in allowed:
         raise ConfigError(f"{name}: expected one of {', '.join(allowed)}, got {value!r}.")
     return key
+
+
+def _shortfall_penalty(n_locales: int) -> int:
+    """Price of one locale missing from a route's ``min_tour``: more than any tour (N arcs) costs."""
+    return (n_locales + 1) * COST_SCALE_MAX
 
 
 def arc_costs(scenario: Scenario) -> tuple[np.ndarray, float]:
@@ -158,18 +165,25 @@ def solve_ortools(
     routing = pywrapcp.RoutingModel(manager)
     transit = routing.RegisterTransitMatrix(cost.tolist())
     routing.SetArcCostEvaluatorOfAllVehicles(transit)
-    # Every arc counts 1: the cumul at a vehicle's end is its number of locales + 1.
+    # Every arc counts 1: the cumul at a vehicle's end is its number of locales + 1. A hard lower bound
+    # there defeats the first-solution heuristics (they fill one route first and then time out
+    # backtracking), so it is soft, at a price per missing locale above the cost of any whole tour;
+    # the answer is checked afterwards.
     routing.AddConstantDimension(1, N + 1, True, "count")
     count = routing.GetDimensionOrDie("count")
+    penalty = _shortfall_penalty(N)
     for v in range(M):
-        count.CumulVar(routing.End(v)).SetMin(min_tour + 1)
+        count.SetCumulVarSoftLowerBound(routing.End(v), min_tour + 1, penalty)
+        # Otherwise OR-Tools skips the costs of an empty route, and with them its shortfall.
+        routing.SetVehicleUsedWhenEmpty(True, v)
 
     improvements: list[float] = []
 
     def record() -> None:
-        value = routing.CostVar().Value() / scale
-        if not improvements or value < improvements[-1]:
-            improvements.append(value)
+        value = routing.CostVar().Value()
+        # Solutions short of min_tour carry a penalty larger than any tour: not part of the history.
+        if value < penalty and (not improvements or value / scale < improvements[-1]):
+            improvements.append(value / scale)
 
     routing.AddAtSolutionCallback(record)
 
@@ -200,6 +214,14 @@ def solve_ortools(
             node_index = solution.Value(routing.NextVar(node_index))
         routes.append(np.array(route, dtype=np.intp))
 
+    short = [m for m, r in enumerate(routes) if r.size < min_tour]
+    if short:
+        raise SolverError(
+            f"OR-Tools found no ordering with min_tour={min_tour} within {limit} s (route(s) {short} "
+            "are short); raise time_limit or lower min_tour.",
+            backend="ortools",
+            status=str(routing.status()),
+        )
     total = tour_distance(scenario, routes)
     history = np.array(improvements if improvements else [solution.ObjectiveValue() / scale])
     return TourResult(

@@ -298,7 +298,7 @@ def check_min_tour(scenario: Scenario, min_tour: Any) -> int:
     M, N = scenario.n_platforms, scenario.n_locales
     if value * M > N:
         raise ConfigError(
-            f"min_tour: {M} platforms with at least {value} locales each need >= {value * M} locales, "
-            f"the scenario has {N}."
+            f"min_tour: expected min_tour * platforms <= locales, i.e. at most {N // M} for {M} platforms "
+            f"and {N} locales, got {value}."
         )
     return value
