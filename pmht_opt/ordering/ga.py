@@ -1,4 +1,4 @@
-"""The GA-TSP baseline: a Kirk-style genetic algorithm for the open multiple TSP (SPEC section 3).
+r"""The GA-TSP baseline: a Kirk-style genetic algorithm for the open multiple TSP (SPEC section 3).
 
 Encoding
 --------
@@ -10,16 +10,15 @@ the position in ``p`` of each route's first locale.
 
 Cost
 ----
-With ``D`` the locale-to-locale distance matrix and ``S[m, n]`` the distance from start ``m`` to locale
-``n``, the cost of ``(p, b)`` is the sum of every leg of the chain ``p`` minus the ``M - 1`` legs that
-straddle a break, plus the ``M`` start legs:
+Stack the locales ``z_0 .. z_{N-1}`` and the starts ``s_0 .. s_{M-1}`` as rows ``0 .. N+M-1`` of a table
+``L[r, n] = ||row_r - z_n||``. Each locale is entered exactly once, from the previous locale of its route
+or, if it heads route ``m``, from start ``s_m``. With ``prev_k = p_{k-1}`` and ``prev_{b_m} = N + m``,
 
 .. math::
 
-    C = \\sum_{k=0}^{N-2} D[p_k, p_{k+1}] - \\sum_{m=1}^{M-1} D[p_{b_m - 1}, p_{b_m}]
-        + \\sum_{m=0}^{M-1} S[m, p_{b_m}].
+    C(p, b) = \sum_{k=0}^{N-1} L[\mathrm{prev}_k, p_k],
 
-That is three gathers and three row sums for the whole population, the core of the vectorised evaluation.
+so the whole population is costed by one gather ``L.ravel()[prev * N + p]`` and one row sum.
 
 Iteration (after Kirk's MATLAB mTSP GAs)
 ----------------------------------------
@@ -33,7 +32,16 @@ outside ``I..J`` and ``I + J - k`` (flip), ``k + 1`` / ``I`` (slide) or the exch
 Random breaks are uniform over the compositions of ``N`` into ``M`` routes of at least ``min_tour``
 locales (stars and bars: ``M - 1`` distinct sorted slots ``c_m`` in ``0 .. N - M min_tour + M - 2`` give
 ``b_m = c_m + m (min_tour - 1) + 1``); with ``min_tour = 1`` this is Kirk's choice of ``M - 1`` distinct
-breaks in ``1 .. N - 1``.
+breaks in ``1 .. N - 1``. (Kirk's code draws constrained breaks from a different, non-uniform law.)
+
+Notes
+-----
+The initial population is ``population`` random permutations with random breaks. Random numbers are drawn
+in batches of ``_CHUNK`` generations, so a seed fixes the whole run. Without crossover or any diversity
+mechanism a run can stall at a tour that no single move (one flip, swap or slide with or without new
+breaks) improves, even on a handful of locales; this is the baseline's nature, not something to fix here.
+On the 10 x 10 grid of scenario A many tours tie exactly, so which of them wins depends on the last bits
+of the floating-point sums.
 """
 
 from __future__ import annotations
@@ -181,22 +189,25 @@ def _evolve(
     N, M = z.shape[0], s.shape[0]
     P, G, iters, min_tour = params.population, params.population // GROUP, params.iterations, params.min_tour
 
-    Dflat = np.sqrt(((z[:, None, :] - z[None, :, :]) ** 2).sum(-1)).ravel()
-    # Start legs indexed as Sflat[m * N + locale]; the m * N offsets are added to the heads' locales.
-    Sflat = np.sqrt(((s[:, None, :] - z[None, :, :]) ** 2).sum(-1)).ravel()
-    start_off = np.arange(M) * N
+    # One table of leg lengths: rows 0..N-1 are locales, rows N..N+M-1 the starts, so every locale's
+    # incoming leg is table[prev * N + locale] with prev the previous locale or, at a route head, the
+    # platform's start. One gather and one row sum then cost the whole population.
+    pts = np.vstack([z, s])
+    table = np.sqrt(((pts[:, None, :] - z[None, :, :]) ** 2).sum(-1)).ravel()
+    start_rows = (N + np.arange(M, dtype=np.intp)) * N
 
     pop = rng.permuted(np.tile(np.arange(N, dtype=np.intp), (P, 1)), axis=1)
     heads = _random_heads(rng, P, N, M, min_tour)
     rows = np.arange(P)[:, None]
     grows = np.arange(G)
+    legs_at = np.empty((P, N), dtype=np.intp)
 
-    # Child c of group g reads parent row g at idx[g, c, k]; offsets g * N make it a flat gather.
-    k = np.arange(N, dtype=np.intp)
+    # Child c of group g reads parent row g at idx[g, c, k]; offsets g * N make that one flat gather.
     goff = (np.arange(G, dtype=np.intp) * N)[:, None]
+    kg = np.arange(N, dtype=np.intp) + goff
     idx = np.empty((G, GROUP, N), dtype=np.intp)
-    idx[:, 0] = k + goff
-    idx[:, 4] = k + goff
+    idx[:, 0] = kg
+    idx[:, 4] = kg
     new_heads = np.empty((G, GROUP, M), dtype=np.intp)
 
     best_cost = np.inf
@@ -208,16 +219,14 @@ def _evolve(
         c = it % _CHUNK
         if c == 0:
             n = min(_CHUNK, iters - it)
-            orders = rng.permuted(np.tile(np.arange(P), (n, 1)), axis=1)
+            orders = rng.permuted(np.tile(np.arange(P), (n, 1)), axis=1).reshape(n, G, GROUP)
             IJ = np.sort(rng.integers(0, N, size=(n, G, 2)), axis=2)
             fresh = _random_heads(rng, n * G * 4, N, M, min_tour).reshape(n, G, 4, M)
 
-        # Evaluate: chain legs minus break legs plus start legs.
-        legs = Dflat[pop[:, :-1] * N + pop[:, 1:]]
-        cost = legs.sum(axis=1)
-        if M > 1:
-            cost -= legs[rows, heads[:, 1:] - 1].sum(axis=1)
-        cost += Sflat[pop[rows, heads] + start_off].sum(axis=1)
+        np.multiply(pop[:, :-1], N, out=legs_at[:, 1:])
+        legs_at[rows, heads] = start_rows
+        legs_at += pop
+        cost = table[legs_at].sum(axis=1)
 
         i = int(np.argmin(cost))
         if cost[i] < best_cost:
@@ -228,25 +237,27 @@ def _evolve(
         if callback is not None:
             callback(it, best_cost)
 
-        # Select the best of each group of 8 after a random shuffle.
-        order = orders[c].reshape(G, GROUP)
+        # The best of each group of 8 (after a random shuffle) is the parent of the group's children.
+        order = orders[c]
         winners = order[grows, np.argmin(cost[order], axis=1)]
-        parents = pop[winners]
 
+        i_pos, j_pos = IJ[c, :, 0], IJ[c, :, 1]
         I = IJ[c, :, 0:1] + goff  # noqa: E741 (the paper's I..J)
         J = IJ[c, :, 1:2] + goff
-        kg = idx[:, 0]
         inside = (kg >= I) & (kg <= J)
         flip = np.where(inside, I + J - kg, kg)
-        swap = np.where(kg == I, J, np.where(kg == J, I, kg))
-        slide = np.where(kg == J, I, np.where(inside, kg + 1, kg))
+        swap = kg.copy()
+        swap[grows, i_pos] = J[:, 0]
+        swap[grows, j_pos] = I[:, 0]
+        slide = kg + inside  # k + 1 on I..J-1, then J wraps to I
+        slide[grows, j_pos] = I[:, 0]
         idx[:, 1] = flip
         idx[:, 5] = flip
         idx[:, 2] = swap
         idx[:, 6] = swap
         idx[:, 3] = slide
         idx[:, 7] = slide
-        pop = parents.ravel()[idx].reshape(P, N)
+        pop = pop[winners].ravel()[idx].reshape(P, N)
         new_heads[:, :4] = heads[winners][:, None, :]
         new_heads[:, 4:] = fresh[c]
         heads = new_heads.reshape(P, M).copy()

@@ -1,4 +1,4 @@
-"""Tours of the open multiple travelling salesman problem and their cost (SPEC section 3).
+r"""Tours of the open multiple travelling salesman problem and their cost (SPEC section 3).
 
 A *tour* is one route per platform: route ``m`` is an integer array of locale indices in visiting order,
 flown by platform ``m`` from its start. Every locale is in exactly one route and nobody returns, so the
@@ -6,8 +6,8 @@ cost of a tour is
 
 .. math::
 
-    C = \\sum_{m=1}^{M} \\Big( \\lVert z_{r_m(1)} - s_m \\rVert
-        + \\sum_{k=2}^{|r_m|} \\lVert z_{r_m(k)} - z_{r_m(k-1)} \\rVert \\Big),
+    C = \sum_{m=1}^{M} \Big( \lVert z_{r_m(1)} - s_m \rVert
+        + \sum_{k=2}^{|r_m|} \lVert z_{r_m(k)} - z_{r_m(k-1)} \rVert \Big),
 
 with ``s_m`` platform ``m``'s start and an empty route costing 0. The solvers compute ``C`` from
 precomputed distance matrices; :func:`route_costs` recomputes it here from coordinates alone, so a result
