@@ -58,7 +58,11 @@ BACKEND_DEFAULTS: dict[str, dict[str, Any]] = {
         "polishing": False,
         "check_termination": 10,
     },
-    "clarabel": {},
+    # Iterative refinement of the KKT solves roughly doubles the time of a constrained M-step (12-13
+    # interior-point iterations; measured 3.4 s against 1.9 s for 20 iterations of scenario A with a
+    # speed limit and area bounds) and is not needed: without it the unconstrained answer is still
+    # within 4e-10 of RTS, and constraint violations stay below 1e-9.
+    "clarabel": {"iterative_refinement_enable": False},
 }
 
 

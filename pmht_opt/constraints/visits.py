@@ -23,38 +23,52 @@ from pmht_opt.model import POS, PX, PY
 def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """``(platform (N,), time (N,))`` each locale must be visited at, from ``ctx.estep``.
 
-    Each locale takes its MAP ``(platform, time)``. Two locales that share a platform and time but lie
-    more than ``2 radius`` apart cannot both be met; the later of them (in order of decreasing MAP
-    weight) moves to its most probable time on the same platform that is free of such a conflict.
-    Times with zero weight (outside a sub-batch in :func:`~pmht_opt.smoothed.plan_smoothed`) are never
-    chosen unless nothing else is left.
+    Each locale takes its MAP ``(platform, time)``, in order of decreasing MAP weight, unless that time
+    clashes with a locale already placed on the same platform (or with its start, at ``t = 0``): two
+    visits clash when the platform
+    would have to cover the distance between the two discs faster than twice the current path's mean
+    speed (two locales more than ``2 radius`` apart at the same step always clash). A clashing locale
+    takes its most probable time that clashes with nothing (the nearest such time among equally probable
+    ones), so times with zero weight (outside a sub-batch in :func:`~pmht_opt.smoothed.plan_smoothed`)
+    are chosen only if nothing else is left.
     """
     es = ctx.estep
     if es is None:
         raise ConfigError("VisitAll needs the E-step result; it can only be used inside the planner.")
     locales = ctx.scenario.locales
+    starts = ctx.scenario.start_positions
     w = es.weights_ntm()  # (N, T, M)
     platform, time = es.map_assignment()
     best = w[np.arange(w.shape[0]), time - 1, platform]
-    taken: dict[tuple[int, int], list[int]] = {}
-    reach = 2.0 * radius
+    steps = np.diff(ctx.states[:, :, POS], axis=1)
+    speed = np.median(np.hypot(steps[..., 0], steps[..., 1]), axis=1)  # (M,) typical step length
+    placed_t: dict[int, list[int]] = {}
+    placed_n: dict[int, list[int]] = {}
     for n in np.argsort(-best, kind="stable").tolist():
         m = int(platform[n])
+        # The start (t = 0) counts as a placed visit: a locale 1 unit from the start cannot be met at t = 1.
+        others_t = np.asarray([0, *placed_t.get(m, [])], dtype=float)
+        gap = np.maximum(np.hypot(*(locales[placed_n.get(m, [])] - locales[n]).T) - 2.0 * radius, 0.0)
+        gap = np.concatenate([[max(float(np.hypot(*(starts[m] - locales[n]))) - radius, 0.0)], gap])
+        vref = 2.0 * max(float(speed[m]), 1e-9)
 
-        def clash(t: int, n: int = n, m: int = m) -> bool:
-            others = taken.get((m, t), [])
-            return any(np.hypot(*(locales[n] - locales[k])) > reach for k in others)
+        def clash(t: np.ndarray, others_t: np.ndarray = others_t, gap: np.ndarray = gap, vref: float = vref) -> np.ndarray:
+            if others_t.size == 0:
+                return np.zeros(t.shape, dtype=bool)
+            dt = np.abs(t[:, None] - others_t[None, :])
+            return np.any(((dt == 0) & (gap > 0)) | (dt * vref < gap), axis=1)
 
         t = int(time[n])
-        if clash(t):
-            order = np.argsort(-w[n, :, m], kind="stable") + 1
-            free = [int(s) for s in order if w[n, s - 1, m] > 0 and not clash(int(s))]
-            if not free:
-                free = [int(s) for s in order if not clash(int(s))]
-            if free:
-                t = free[0]
+        if clash(np.array([t]))[0]:
+            # Most probable first; among equally probable (e.g. underflowed) times, the nearest.
+            cand = np.arange(1, w.shape[1] + 1)
+            order = cand[np.lexsort((np.abs(cand - t), -w[n, :, m]))]
+            pick = np.flatnonzero(~clash(order.astype(float)))
+            if pick.size:
+                t = int(order[pick[0]])
         time[n] = t
-        taken.setdefault((m, t), []).append(n)
+        placed_t.setdefault(m, []).append(t)
+        placed_n.setdefault(m, []).append(n)
     return platform, time
 
 
