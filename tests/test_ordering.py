@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -395,7 +396,7 @@ def test_tour_distance_rejects_malformed_routes(routes: object, pattern: str) ->
         tour_distance(sc, routes)  # type: ignore[arg-type]
 
 
-def test_tour_result_views_and_validation(tmp_path: object) -> None:
+def test_tour_result_views_and_validation() -> None:
     sc = instance(6, 2, 4)
     res = TourResult.from_routes(sc, [[3, 0, 5], [1, 4, 2]])
     assert res.method == "given"
@@ -419,7 +420,7 @@ def test_tour_result_views_and_validation(tmp_path: object) -> None:
     assert data["routes"] == [[3, 0, 5], [1, 4, 2]]
 
 
-def test_tour_result_plot_writes_png(tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_tour_result_plot_writes_png(tmp_path: Path) -> None:
     sc = paper_scenario("B", seed=0)
     res = solve_ga_tsp(sc, iterations=20)
     out = res.plot(tmp_path / "sub" / "tour.png")
