@@ -3,6 +3,18 @@
 Public names are re-exported here; see README.md for an overview.
 """
 
+from pmht_opt.constraints import (
+    AccelLimit,
+    AreaBounds,
+    CircleObstacle,
+    Constraint,
+    ConstraintReport,
+    CvxpyConstraint,
+    PolygonObstacle,
+    SpeedLimit,
+    Terminal,
+    VisitAll,
+)
 from pmht_opt.exceptions import (
     ConfigError,
     InfeasibleError,
@@ -14,14 +26,22 @@ from pmht_opt.exceptions import (
 )
 from pmht_opt.model import MotionModel
 from pmht_opt.mstep import available_backends
+from pmht_opt.ordering import TourResult, order_locales, solve_ga_tsp, solve_ortools, tour_distance
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario, paper_scenario
+from pmht_opt.smoothed import plan_smoothed
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "AccelLimit",
+    "AreaBounds",
+    "CircleObstacle",
     "ConfigError",
+    "Constraint",
+    "ConstraintReport",
+    "CvxpyConstraint",
     "InfeasibleError",
     "IterationHistory",
     "MissingDependencyError",
@@ -29,12 +49,22 @@ __all__ = [
     "PMHTConfig",
     "PlanResult",
     "PmhtOptError",
+    "PolygonObstacle",
     "Scenario",
     "ScenarioError",
     "SolverError",
+    "SpeedLimit",
+    "Terminal",
+    "TourResult",
     "UnknownSolverError",
+    "VisitAll",
     "__version__",
     "available_backends",
+    "order_locales",
     "paper_scenario",
     "plan_pmht",
+    "plan_smoothed",
+    "solve_ga_tsp",
+    "solve_ortools",
+    "tour_distance",
 ]

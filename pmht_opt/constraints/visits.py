@@ -52,7 +52,9 @@ def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np
         gap = np.concatenate([[max(float(np.hypot(*(starts[m] - locales[n]))) - radius, 0.0)], gap])
         vref = 2.0 * max(float(speed[m]), 1e-9)
 
-        def clash(t: np.ndarray, others_t: np.ndarray = others_t, gap: np.ndarray = gap, vref: float = vref) -> np.ndarray:
+        def clash(
+            t: np.ndarray, others_t: np.ndarray = others_t, gap: np.ndarray = gap, vref: float = vref
+        ) -> np.ndarray:
             if others_t.size == 0:
                 return np.zeros(t.shape, dtype=bool)
             dt = np.abs(t[:, None] - others_t[None, :])

@@ -1,0 +1,274 @@
+"""GA-TSP PMHT smoothed: a tour turned into hard ordering constraints (SPEC section 4).
+
+The paper feeds a GA tour to the PMHT planner through its priors: ``pi^k[n, m] = 1`` for the tour's
+platform, and ``pi^tau[n, .]`` uniform on the locale's *sub-batch* (the platform's horizon cut into one
+window per locale, in tour order) and zero elsewhere. That makes the order likely, not certain: a
+locale can still be passed at a distance. Here the tour is also a constraint: in every M-step, each
+locale must be within ``visit_radius`` of its platform at one time step inside its own sub-batch,
+the step the E-step finds most probable (re-chosen every iteration). Sub-batches are disjoint and
+ordered, so the returned paths pass the locales in tour order, guaranteed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from pmht_opt.constraints.base import (
+    DEFAULT_SIDES,
+    Block,
+    Constraint,
+    ConstraintContext,
+    ConstraintReport,
+    check_sides,
+    disc_block,
+    positive_number,
+)
+from pmht_opt.exceptions import ConfigError
+from pmht_opt.model import POS, PX, PY, STATE_DIM, VEL
+from pmht_opt.ordering.tour import TourResult, check_routes
+from pmht_opt.planner import PMHTConfig, ProgressCallback, plan_pmht
+from pmht_opt.result import PlanResult
+from pmht_opt.scenario import Scenario
+
+#: How a platform's horizon is cut into sub-batches.
+SPLITS = ("equal", "distance")
+
+
+def sub_batches(scenario: Scenario, routes: Sequence[np.ndarray], split: str = "equal") -> np.ndarray:
+    """``(N, 2)`` first and last time step (inclusive, ``1..T``) of each locale's sub-batch.
+
+    ``"equal"`` (the paper) gives every locale of a route the same number of steps; ``"distance"``
+    makes each window proportional to the leg that ends at the locale (start to first locale, then
+    consecutive locales), so a long leg gets more time.
+    """
+    if split not in SPLITS:
+        raise ConfigError(f"split: expected one of {SPLITS}, got {split!r}.")
+    T = scenario.horizon
+    out = np.zeros((scenario.n_locales, 2), dtype=int)
+    for m, route in enumerate(routes):
+        L = len(route)
+        if L == 0:
+            continue
+        if L > T:
+            raise ConfigError(f"platform {m} has {L} locales but the horizon has only {T} steps.")
+        if split == "equal":
+            share = np.ones(L)
+        else:
+            pts = np.vstack([scenario.start_positions[m][None, :], scenario.locales[route]])
+            share = np.hypot(*np.diff(pts, axis=0).T) + 1e-9
+        edges = np.concatenate([[0.0], np.cumsum(share)]) / share.sum() * T
+        bounds = np.round(edges).astype(int)
+        # Every window keeps at least one step.
+        for k in range(1, L + 1):
+            bounds[k] = min(max(bounds[k], bounds[k - 1] + 1), T - (L - k))
+        out[route, 0] = bounds[:-1] + 1
+        out[route, 1] = bounds[1:]
+    return out
+
+
+class TourVisits(Constraint):
+    """Each locale within ``radius`` of its tour platform at one step of its sub-batch.
+
+    The step is the most probable one of the E-step inside the window (re-chosen every iteration).
+    Used by :func:`plan_smoothed`; a cone per locale, or an inner polygon on OSQP.
+    """
+
+    dynamic = True
+
+    def __init__(
+        self,
+        platform: np.ndarray,
+        windows: np.ndarray,
+        radius: float = 0.1,
+        sides: int = DEFAULT_SIDES,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(**kwargs)
+        self.platform = np.asarray(platform, dtype=int)
+        self.windows = np.asarray(windows, dtype=int)
+        self.radius = positive_number("visit_radius", radius)
+        self.sides = check_sides("TourVisits", sides)
+
+    @property
+    def name(self) -> str:
+        return f"TourVisits({self.radius:g})"
+
+    def visit_times(self, ctx: ConstraintContext) -> np.ndarray:
+        """``(N,)`` step of each locale's visit: the E-step's most probable one in its window."""
+        if ctx.estep is None:
+            raise ConfigError("TourVisits needs the E-step result; it can only be used inside the planner.")
+        w = ctx.estep.weights_ntm()
+        times = np.empty(self.platform.shape[0], dtype=int)
+        for n, (m, (lo, hi)) in enumerate(zip(self.platform, self.windows, strict=True)):
+            times[n] = lo + int(np.argmax(w[n, lo - 1 : hi, m]))
+        return times
+
+    def blocks(self, ctx: ConstraintContext) -> list[Block]:
+        times = self.visit_times(ctx)
+        T = ctx.scenario.horizon
+        out = []
+        for m in range(ctx.scenario.n_platforms):
+            mine = np.flatnonzero(self.platform == m)
+            if mine.size:
+                blk = disc_block(
+                    m,
+                    T,
+                    times[mine],
+                    (PX, PY),
+                    ctx.scenario.locales[mine],
+                    np.full(mine.size, self.radius),
+                    ctx.conic,
+                    self.sides,
+                    labels=[f"locale {n}" for n in mine.tolist()],
+                )
+                blk.G = self._fixed_pattern(blk.G, self.windows[mine], blk.h.shape[0] // mine.size, T)
+                out.append(blk)
+        return out
+
+    @staticmethod
+    def _fixed_pattern(G: sp.csr_matrix, windows: np.ndarray, rows_per: int, T: int) -> sp.csr_matrix:
+        """``G`` with explicit zeros on the position columns of every step of each locale's window.
+
+        The visit step moves inside the window from one iteration to the next; with the whole window
+        stored, the rows keep one sparsity pattern, so the backends update numbers instead of setting
+        up (or, for cvxpy, recompiling) the problem again.
+        """
+        rows, cols = [], []
+        for i, (lo, hi) in enumerate(windows):
+            steps = np.arange(lo, hi + 1)
+            for k in range(rows_per):
+                for comp in (PX, PY):
+                    rows.append(np.full(steps.size, i * rows_per + k))
+                    cols.append(STATE_DIM * (steps - 1) + comp)
+        r = np.concatenate(rows)
+        c = np.concatenate(cols)
+        pad = sp.csr_matrix((np.zeros(r.size), (r, c)), shape=G.shape)
+        coo = G.tocoo()
+        both = sp.csr_matrix(
+            (np.concatenate([coo.data, pad.data]), (np.concatenate([coo.row, r]), np.concatenate([coo.col, c]))),
+            shape=G.shape,
+        )
+        both.sum_duplicates()
+        return both
+
+    def violation(self, states: np.ndarray, ctx: ConstraintContext) -> ConstraintReport:
+        report = super().violation(states, ctx)
+        times = self.visit_times(ctx)
+        dist = np.hypot(*(states[self.platform, times][:, POS] - ctx.scenario.locales).T)
+        inside = (times >= self.windows[:, 0]) & (times <= self.windows[:, 1])
+        report.details.update(
+            {
+                "visits_met": int(np.sum(dist <= self.radius + 1e-6)),
+                "max_visit_distance": float(np.max(dist)) if dist.size else 0.0,
+                "times_in_sub_batch": int(np.sum(inside)),
+            }
+        )
+        return report
+
+
+def _polyline_start(scenario: Scenario, routes: list[np.ndarray], windows: np.ndarray) -> np.ndarray:
+    """Paths along the tour: straight legs reaching each locale at the middle of its sub-batch."""
+    M, T = scenario.n_platforms, scenario.horizon
+    x0 = scenario.initial_states
+    paths = np.repeat(x0[:, None, :], T + 1, axis=1)
+    t_grid = np.arange(T + 1, dtype=float)
+    for m, route in enumerate(routes):
+        if len(route) == 0:
+            continue
+        knots_t = np.concatenate([[0.0], windows[route].mean(axis=1), [float(T)]])
+        pts = np.vstack([scenario.start_positions[m], scenario.locales[route], scenario.locales[route[-1]]])
+        pos = np.stack([np.interp(t_grid, knots_t, pts[:, k]) for k in range(2)], axis=1)
+        vel = np.gradient(pos, scenario.dt, axis=0)
+        body = paths[m, 1:]  # a view
+        body[:] = 0.0
+        body[:, POS] = pos[1:]
+        body[:, VEL] = vel[1:]
+    paths[:, 0, :] = x0
+    assert paths.shape == (M, T + 1, STATE_DIM)
+    return paths
+
+
+def plan_smoothed(
+    scenario: Scenario,
+    tour: TourResult | Sequence[Any],
+    config: PMHTConfig | None = None,
+    visit_radius: float = 0.1,
+    *,
+    split: str = "equal",
+    sides: int = DEFAULT_SIDES,
+    callback: ProgressCallback | None = None,
+) -> PlanResult:
+    """Smooth paths that pass every locale in the order of ``tour`` (GA-TSP PMHT smoothed).
+
+    Parameters
+    ----------
+    scenario
+        The locales, starts and model.
+    tour
+        A :class:`~pmht_opt.ordering.TourResult` (e.g. from :func:`~pmht_opt.order_locales`) or one
+        sequence of locale indices per platform, in visiting order.
+    config
+        Planner settings (solver, iterations, extra constraints such as a
+        :class:`~pmht_opt.constraints.SpeedLimit`). Both prior updates are switched off: the tour fixes
+        them.
+    visit_radius
+        Each locale is passed within this distance, at a step inside its sub-batch.
+    split
+        How each platform's horizon is cut into sub-batches: ``"equal"`` (the paper) or
+        ``"distance"`` (proportional to the legs of the tour).
+    sides
+        Sides of the inner polygon standing in for the visit disc on OSQP.
+    callback
+        Called as ``callback(iteration, objective)`` after every iteration.
+
+    Returns
+    -------
+    PlanResult
+        The paths; ``assignment`` is the tour's platform and ``visit_time`` the enforced visit step of
+        each locale; ``extras`` holds ``routes`` and ``sub_batches``.
+
+    Raises
+    ------
+    InfeasibleError
+        If the visits cannot be met together with the configuration's other constraints; the
+        message names the platform and the locales.
+    """
+    routes = check_routes(scenario, tour.routes if isinstance(tour, TourResult) else tour)
+    cfg = config if config is not None else PMHTConfig()
+    if not isinstance(cfg, PMHTConfig):
+        raise ConfigError(f"config must be a PMHTConfig, got {type(cfg).__name__}.")
+    windows = sub_batches(scenario, routes, split)
+    N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon
+    platform = np.empty(N, dtype=int)
+    for m, route in enumerate(routes):
+        platform[route] = m
+    visits = TourVisits(platform, windows, visit_radius, sides=sides)
+    run_cfg = dataclasses.replace(
+        cfg,
+        update_time_prior=False,
+        update_platform_prior=False,
+        constraints=(*cfg.constraints, visits),
+    )
+    time_prior = np.zeros((N, T))
+    for n, (lo, hi) in enumerate(windows):
+        time_prior[n, lo - 1 : hi] = 1.0
+    platform_prior = np.zeros((N, M))
+    platform_prior[np.arange(N), platform] = 1.0
+    result = plan_pmht(
+        scenario,
+        run_cfg,
+        time_prior=time_prior,
+        platform_prior=platform_prior,
+        callback=callback,
+        initial_paths=_polyline_start(scenario, routes, windows),
+    )
+    assert result.constraint_context is not None
+    result.assignment = platform
+    result.visit_time = visits.visit_times(result.constraint_context)
+    result.extras.update({"routes": routes, "sub_batches": windows, "visit_radius": visits.radius})
+    return result
