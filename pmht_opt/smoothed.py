@@ -150,7 +150,10 @@ class TourVisits(Constraint):
         pad = sp.csr_matrix((np.zeros(r.size), (r, c)), shape=G.shape)
         coo = G.tocoo()
         both = sp.csr_matrix(
-            (np.concatenate([coo.data, pad.data]), (np.concatenate([coo.row, r]), np.concatenate([coo.col, c]))),
+            (
+                np.concatenate([coo.data, pad.data]),
+                (np.concatenate([coo.row, r]), np.concatenate([coo.col, c])),
+            ),
             shape=G.shape,
         )
         both.sum_duplicates()

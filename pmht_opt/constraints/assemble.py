@@ -25,15 +25,16 @@ class Imposed:
     name: str
     soft: bool = False
     weight: float = 0.0
+    dynamic: bool = True
 
     @classmethod
     def of(cls, block: Block, constraint: Constraint) -> Imposed:
         """The block as ``constraint`` asks for it (hard or soft)."""
-        return cls(block, constraint.name, constraint.soft, constraint.weight)
+        return cls(block, constraint.name, constraint.soft, constraint.weight, type(constraint).dynamic)
 
     def relaxed(self, weight: float) -> Imposed:
         """The same block imposed softly with ``weight`` (for infeasibility diagnoses)."""
-        return Imposed(self.block, self.name, True, weight)
+        return Imposed(self.block, self.name, True, weight, self.dynamic)
 
 
 @dataclass

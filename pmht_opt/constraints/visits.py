@@ -53,12 +53,18 @@ def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np
         vref = 2.0 * max(float(speed[m]), 1e-9)
 
         def clash(
-            t: np.ndarray, others_t: np.ndarray = others_t, gap: np.ndarray = gap, vref: float = vref
+            t: np.ndarray,
+            others_t: np.ndarray = others_t,
+            gap: np.ndarray = gap,
+            vref: float = vref,
+            fast: bool = True,
         ) -> np.ndarray:
-            if others_t.size == 0:
-                return np.zeros(t.shape, dtype=bool)
             dt = np.abs(t[:, None] - others_t[None, :])
-            return np.any(((dt == 0) & (gap > 0)) | (dt * vref < gap), axis=1)
+            same = (dt == 0) & (gap > 0)
+            if fast:
+                same = same | (dt * vref < gap)
+            same[:, 0] = same[:, 0] & fast  # the start is only a speed check
+            return np.any(same, axis=1)
 
         t = int(time[n])
         if clash(np.array([t]))[0]:
@@ -66,6 +72,8 @@ def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np
             cand = np.arange(1, w.shape[1] + 1)
             order = cand[np.lexsort((np.abs(cand - t), -w[n, :, m]))]
             pick = np.flatnonzero(~clash(order.astype(float)))
+            if pick.size == 0:  # no time the platform can reach comfortably: at least never two at once
+                pick = np.flatnonzero(~clash(order.astype(float), fast=False))
             if pick.size:
                 t = int(order[pick[0]])
         time[n] = t

@@ -1,0 +1,278 @@
+"""Constraints: every kind holds on the returned plans for every backend that takes it; backends agree
+on constrained M-steps; constraints never improve the objective; infeasible and soft cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pmht_opt import (
+    AccelLimit,
+    AreaBounds,
+    CircleObstacle,
+    ConfigError,
+    CvxpyConstraint,
+    InfeasibleError,
+    PMHTConfig,
+    PolygonObstacle,
+    Scenario,
+    ScenarioError,
+    SolverError,
+    SpeedLimit,
+    Terminal,
+    VisitAll,
+    paper_scenario,
+    plan_pmht,
+)
+from pmht_opt.constraints.base import ConstraintContext
+from pmht_opt.estep import estep
+from pmht_opt.model import POS
+from pmht_opt.mstep import MStepData, make_mstep, mstep_objective
+
+#: Largest violation accepted on a returned plan, per backend. OSQP stops ADMM at 1e-5 on
+#: constrained M-steps (see mstep.CONSTRAINED_DEFAULTS); its polygons are inner approximations, so
+#: the exact constraint is usually met with room to spare, but a step left unpolished may miss it
+#: by about the ADMM tolerance.
+VIOLATION_TOL = {"clarabel": 1e-6, "cvxpy": 1e-6, "osqp": 1e-4}
+ITERATIONS = {"clarabel": 6, "osqp": 4, "cvxpy": 2}
+
+
+def _unconstrained_speed(kind: str) -> float:
+    res = plan_pmht(paper_scenario(kind, seed=1), PMHTConfig(max_iter=20))
+    return res.max_speed
+
+
+def _obstacles(sc: Scenario) -> list:
+    circle = CircleObstacle((3.0, 6.5), 0.8)
+    square = PolygonObstacle([(6.0, 4.0), (7.5, 4.0), (7.5, 6.0), (6.0, 6.0)])
+    for ob in (circle, square):
+        assert np.all(ob.penetration(sc.start_positions) == 0), "test obstacle covers a start"
+    return [circle, square]
+
+
+@pytest.fixture(scope="module")
+def speeds() -> dict[str, float]:
+    return {kind: _unconstrained_speed(kind) for kind in "ABC"}
+
+
+# cvxpy compiles every constrained problem (minutes for six kinds on a 500-step horizon), so it runs
+# on A with a 100-step horizon; the single M-step tests below cross-check it against clarabel.
+CASES = [(k, s) for k in "ABC" for s in ("clarabel", "osqp")] + [("A", "cvxpy")]
+HORIZON = {"cvxpy": 100}
+
+
+@pytest.mark.parametrize(("kind", "solver"), CASES)
+def test_motion_area_obstacles_terminal_hold(kind: str, solver: str, speeds: dict[str, float]) -> None:
+    sc = paper_scenario(kind, seed=1, horizon=HORIZON.get(solver, 500))
+    vmax = 0.7 * speeds[kind]
+    cons = [
+        SpeedLimit(vmax),
+        AccelLimit(0.05),
+        AreaBounds(-1.5, 10.5, -0.5, 10.5),  # B starts at x = -1
+        *_obstacles(sc),
+        Terminal(velocity=(0.0, 0.0)),
+    ]
+    res = plan_pmht(sc, PMHTConfig(solver=solver, max_iter=ITERATIONS[solver], constraints=cons))
+    tol = VIOLATION_TOL[solver]
+    reports = res.constraint_reports()
+    assert [r.name for r in reports] == [c.name for c in cons]
+    for rep in reports:
+        assert rep.max_violation <= tol, rep
+    # Independent checks on the paths themselves.
+    v = res.states[:, 1:, [1, 4]]
+    assert np.max(np.hypot(v[..., 0], v[..., 1])) <= vmax + tol
+    p = res.positions[:, 1:]
+    assert p[..., 0].min() >= -1.5 - tol and p[..., 0].max() <= 10.5 + tol
+    assert np.hypot(p[..., 0] - 3.0, p[..., 1] - 6.5).min() >= 0.8 - tol
+    assert np.max(np.abs(res.states[:, -1, [1, 4]])) <= tol
+    assert res.max_violation <= tol
+
+
+# OSQP (ADMM at 1e-5) does not reliably converge on VisitAll's polygons: known limitation, reported.
+_OSQP_VISITS = pytest.mark.xfail(
+    reason="OSQP hits its iteration limit on VisitAll", raises=SolverError, strict=False
+)
+VISIT_CASES = [pytest.param(k, s, marks=_OSQP_VISITS) if s == "osqp" else (k, s) for k, s in CASES]
+
+
+@pytest.mark.parametrize(("kind", "solver"), VISIT_CASES)
+def test_visit_all_guarantees_coverage(kind: str, solver: str) -> None:
+    sc = paper_scenario(kind, seed=1, horizon=HORIZON.get(solver, 500))
+    n_iter = {"clarabel": 12, "osqp": 8, "cvxpy": 4}[solver]
+    res = plan_pmht(
+        sc, PMHTConfig(solver=solver, max_iter=n_iter, constraints=[VisitAll(0.1, warmup=n_iter - 2)])
+    )
+    (rep,) = res.constraint_reports()
+    assert rep.max_violation <= VIOLATION_TOL[solver]
+    assert rep.details["visits_met"] == sc.n_locales
+    # Every locale lies within the radius of some path.
+    assert res.coverage(0.1 + VIOLATION_TOL[solver]) == 1.0
+
+
+def test_cvxpy_user_constraint() -> None:
+    sc = paper_scenario("A", seed=1)
+    west = CvxpyConstraint(lambda v: [v.positions[0][:, 0] <= 5.0], name="west")
+    sc = sc.replace(horizon=100)
+    res = plan_pmht(sc, PMHTConfig(solver="cvxpy", max_iter=2, constraints=[west]))
+    assert res.positions[0, 1:, 0].max() <= 5.0 + 1e-6
+    (rep,) = res.constraint_reports()
+    assert rep.name == "west" and rep.max_violation <= 1e-6
+
+
+# ---------------------------------------------------------------- single M-steps
+
+
+def _small() -> Scenario:
+    rng = np.random.default_rng(3)
+    return Scenario(
+        locales=rng.uniform(0, 10, (12, 2)),
+        starts=[[1.0, 1.0], [9.0, 2.0]],
+        horizon=80,
+        bounds=(0, 10, 0, 10),
+    )
+
+
+def _random_mstep(seed: int, sc: Scenario) -> tuple[MStepData, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    T = sc.horizon
+    # Random smooth-ish paths to weigh the locales against.
+    states = np.repeat(sc.initial_states[:, None, :], T + 1, axis=1)
+    drift = rng.uniform(-0.08, 0.08, (sc.n_platforms, 1, 2)) * np.arange(T + 1)[None, :, None]
+    states[:, :, POS] = states[:, :, POS] + drift
+    es = estep(sc.locales, states[:, 1:, POS], None, None, sc.r * 30)
+    return MStepData(W=es.W, WZ=es.WZ, r=sc.r, ctx=None), states
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_backends_agree_on_constrained_msteps(seed: int) -> None:
+    sc = _small()
+    data, states = _random_mstep(seed, sc)
+    es = estep(sc.locales, states[:, 1:, POS], None, None, sc.r * 30)
+    cons = (
+        SpeedLimit(0.12),
+        AreaBounds(0, 10, 0, 10),
+        Terminal(velocity=(0, 0)),
+        CircleObstacle((5, 5), 1.0),
+    )
+    objectives = {}
+    paths = {}
+    for solver, conic in (("clarabel", True), ("cvxpy", True), ("clarabel-poly", False), ("osqp", False)):
+        ms = make_mstep(sc, solver.split("-")[0], constraints=cons)
+        ms.conic = conic
+        ctx = ConstraintContext(scenario=sc, states=states, estep=es, iteration=5, max_iter=10, conic=conic)
+        out = ms.solve(MStepData(W=data.W, WZ=data.WZ, r=data.r, ctx=ctx))
+        ms.close()
+        objectives[solver] = mstep_objective(sc.model, out.states, data)
+        paths[solver] = out.states
+        for con in cons:
+            assert con.violation(out.states, ctx).max_violation <= VIOLATION_TOL[solver.split("-")[0]]
+    rel = abs(objectives["clarabel"] - objectives["cvxpy"]) / abs(objectives["clarabel"])
+    assert rel <= 1e-6, objectives
+    # OSQP against Clarabel on the identical polygonal problem, within OSQP's ADMM tolerance.
+    rel_poly = abs(objectives["osqp"] - objectives["clarabel-poly"]) / abs(objectives["clarabel-poly"])
+    assert rel_poly <= 1e-3, objectives
+    # The inner polygon is a tighter feasible set than the cone: never a better objective.
+    assert objectives["clarabel-poly"] >= objectives["clarabel"] - 1e-9 * abs(objectives["clarabel"])
+
+
+@pytest.mark.parametrize("solver", ["clarabel", "osqp", "cvxpy"])
+def test_constraints_never_improve_the_objective(solver: str) -> None:
+    sc = _small()
+    data, states = _random_mstep(7, sc)
+    es = estep(sc.locales, states[:, 1:, POS], None, None, sc.r * 30)
+    free = make_mstep(sc, solver)
+    ctx = ConstraintContext(scenario=sc, states=states, estep=es, iteration=1, max_iter=1, conic=free.conic)
+    j_free = mstep_objective(sc.model, free.solve(data).states, data)
+    kinds = [[SpeedLimit(0.1)], [AreaBounds(0, 10, 0, 10), AccelLimit(0.01)]]
+    if solver != "osqp":
+        kinds.append([VisitAll(0.2, warmup=0)])
+    for cons in kinds:
+        ms = make_mstep(sc, solver, constraints=tuple(cons))
+        ctx.conic = ms.conic
+        out = ms.solve(MStepData(W=data.W, WZ=data.WZ, r=data.r, ctx=ctx))
+        j = mstep_objective(sc.model, out.states, data)
+        assert j >= j_free - 1e-6 * abs(j_free)
+
+
+# ---------------------------------------------------------------- failure modes and soft mode
+
+
+def _impossible(soft: bool = False) -> list:
+    # A final position outside the area the path must stay in.
+    return [
+        AreaBounds(0, 5, 0, 10, soft=soft, platforms=[0]),
+        Terminal(position=(9.0, 9.0), soft=soft, platforms=[0]),
+    ]
+
+
+@pytest.mark.parametrize(
+    "solver",
+    ["clarabel", pytest.param("osqp", marks=pytest.mark.xfail(raises=SolverError, strict=False)), "cvxpy"],
+)
+def test_infeasible_constraints_raise(solver: str) -> None:
+    sc = _small()
+    with pytest.raises(InfeasibleError) as err:
+        plan_pmht(sc, PMHTConfig(solver=solver, max_iter=2, constraints=_impossible()))
+    msg = str(err.value)
+    assert "AreaBounds" in msg or "Terminal" in msg
+    if solver == "clarabel":
+        assert "platform" in msg and "t = " in msg
+
+
+def test_soft_mode_returns_plan_and_reports_violations() -> None:
+    sc = _small()
+    res = plan_pmht(sc, PMHTConfig(max_iter=3, constraints=_impossible(soft=True)))
+    reports = {r.name.split("(")[0]: r for r in res.constraint_reports()}
+    assert all(r.soft for r in reports.values())
+    assert max(r.max_violation for r in reports.values()) > 1e-3
+    assert not all(r.satisfied for r in reports.values())
+    assert res.metrics()["constraints"]
+
+
+def test_soft_mode_matches_hard_when_feasible() -> None:
+    sc = _small()
+    hard = plan_pmht(sc, PMHTConfig(max_iter=3, constraints=[SpeedLimit(0.1)]))
+    soft = plan_pmht(sc, PMHTConfig(max_iter=3, constraints=[SpeedLimit(0.1, soft=True, weight=1e6)]))
+    assert np.max(np.abs(hard.positions - soft.positions)) < 1e-5
+
+
+def test_start_inside_obstacle_or_outside_area_is_a_scenario_error() -> None:
+    sc = _small()
+    with pytest.raises(ScenarioError, match="platform 0 starts .* inside CircleObstacle"):
+        plan_pmht(sc, PMHTConfig(max_iter=1, constraints=[CircleObstacle((1.2, 1.0), 0.5)]))
+    with pytest.raises(ScenarioError, match="platform 1 starts .* outside AreaBounds"):
+        plan_pmht(sc, PMHTConfig(max_iter=1, constraints=[AreaBounds(0, 5, 0, 10)]))
+
+
+def test_backend_support_and_parameters_are_checked() -> None:
+    with pytest.raises(ConfigError, match="kalman"):
+        PMHTConfig(solver="kalman", constraints=[SpeedLimit(1.0)])
+    with pytest.raises(ConfigError, match="osqp"):
+        PMHTConfig(solver="osqp", constraints=[CvxpyConstraint(lambda v: [])])
+    with pytest.raises(ConfigError, match="SpeedLimit"):
+        SpeedLimit(-1.0)
+    with pytest.raises(ConfigError, match="AreaBounds"):
+        AreaBounds(1, 0, 0, 1)
+    with pytest.raises(ConfigError, match="convex"):
+        PolygonObstacle([(0, 0), (2, 0), (1, 0.2), (2, 2), (0, 2)])
+    with pytest.raises(ConfigError, match="weight"):
+        SpeedLimit(1.0, soft=True, weight=float("nan"))
+    with pytest.raises(ConfigError, match="constraints"):
+        PMHTConfig(constraints=["speed"])
+    with pytest.raises(ConfigError, match="platforms"):
+        plan_pmht(_small(), PMHTConfig(max_iter=1, constraints=[SpeedLimit([0.1, 0.2, 0.3])]))
+
+
+def test_obstacle_report_counts_cutting_segments() -> None:
+    sc = _small()
+    ob = CircleObstacle((5.0, 5.0), 1.0)
+    states = np.zeros((2, 3, 6))
+    states[0, :, 0] = [3.0, 7.0, 7.0]  # a straight hop through the disc, both ends outside
+    states[0, :, 3] = [5.0, 5.0, 8.0]
+    states[1, :, 0] = 9.0
+    ctx = ConstraintContext(scenario=sc, states=states)
+    rep = ob.violation(states, ctx)
+    assert rep.max_violation == 0.0
+    assert rep.details["segment_cuts"] == 1 and rep.details["first_segment_cut"] == (0, 1)
+    sq = PolygonObstacle([(4, 4), (6, 4), (6, 6), (4, 6)])
+    assert sq.violation(states, ctx).details["segment_cuts"] == 1

@@ -1,0 +1,89 @@
+"""plan_smoothed: a tour becomes hard visit constraints inside ordered sub-batches."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pmht_opt import (
+    ConfigError,
+    InfeasibleError,
+    PMHTConfig,
+    SpeedLimit,
+    order_locales,
+    paper_scenario,
+    plan_smoothed,
+)
+from pmht_opt.smoothed import sub_batches
+
+#: Visit distance accepted beyond the radius: solver tolerances (see test_constraints).
+TOL = {"clarabel": 1e-6, "cvxpy": 1e-6, "osqp": 1e-4}
+ITERATIONS = {"clarabel": 8, "osqp": 4, "cvxpy": 2}
+
+
+@pytest.fixture(scope="module")
+def tours() -> dict:
+    out = {}
+    for kind in "ABC":
+        sc = paper_scenario(kind, seed=1)
+        out[kind] = (sc, order_locales(sc, "ga", seed=1, iterations=300))
+    return out
+
+
+@pytest.mark.parametrize("solver", ["clarabel", "osqp"])
+@pytest.mark.parametrize("kind", ["A", "B", "C"])
+def test_smoothed_visits_every_locale_in_tour_order(kind: str, solver: str, tours: dict) -> None:
+    sc, tour = tours[kind]
+    res = plan_smoothed(sc, tour, PMHTConfig(solver=solver, max_iter=ITERATIONS[solver]), visit_radius=0.1)
+    windows = res.extras["sub_batches"]
+    times = res.visit_time
+    for m, route in enumerate(tour.routes):
+        assert np.all(res.assignment[route] == m)
+        # In tour order: visit steps strictly increase along the route ...
+        assert np.all(np.diff(times[route]) > 0)
+        # ... and each lies inside its own sub-batch.
+        assert np.all((times[route] >= windows[route, 0]) & (times[route] <= windows[route, 1]))
+        dist = np.hypot(*(res.positions[m, times[route]] - sc.locales[route]).T)
+        assert np.all(dist <= 0.1 + TOL[solver])
+    rep = res.constraint_reports()[-1]
+    assert rep.details["visits_met"] == sc.n_locales and rep.details["times_in_sub_batch"] == sc.n_locales
+
+
+def test_smoothed_cvxpy_short_horizon() -> None:
+    # cvxpy compiles the whole joint problem; a 120-step horizon keeps the test short.
+    sc = paper_scenario("A", seed=3, horizon=120)
+    routes = [list(range(k, 100, 4)) for k in range(4)]
+    res = plan_smoothed(sc, routes, PMHTConfig(solver="cvxpy", max_iter=2))
+    rep = res.constraint_reports()[-1]
+    assert rep.max_violation <= 1e-6 and rep.details["times_in_sub_batch"] == sc.n_locales
+
+
+def test_sub_batches_partition_each_horizon_in_order() -> None:
+    sc = paper_scenario("B", seed=2)
+    tour = order_locales(sc, "ga", seed=0, iterations=50)
+    for split in ("equal", "distance"):
+        w = sub_batches(sc, tour.routes, split)
+        for route in tour.routes:
+            lo, hi = w[route, 0], w[route, 1]
+            assert lo[0] == 1 and hi[-1] == sc.horizon
+            assert np.all(lo[1:] == hi[:-1] + 1) and np.all(hi >= lo)
+
+
+def test_smoothed_accepts_plain_routes_and_rejects_bad_ones() -> None:
+    sc = paper_scenario("A", seed=3, horizon=120)
+    routes = [list(range(k, 100, 4)) for k in range(4)]
+    res = plan_smoothed(sc, routes, PMHTConfig(max_iter=2))
+    assert res.coverage(0.1 + 1e-6) == 1.0
+    with pytest.raises(ConfigError):
+        plan_smoothed(sc, [list(range(50)), list(range(50, 99)), [], []])  # locale 99 missing
+    with pytest.raises(ConfigError):
+        plan_smoothed(sc, routes, visit_radius=0.0)
+    with pytest.raises(ConfigError, match="split"):
+        plan_smoothed(sc, routes, split="random")
+
+
+def test_smoothed_infeasible_names_platform_and_locale() -> None:
+    sc = paper_scenario("A", seed=3, horizon=120)
+    routes = [list(range(k, 100, 4)) for k in range(4)]
+    with pytest.raises(InfeasibleError, match=r"platform \d.*locale \d+"):
+        plan_smoothed(sc, routes, PMHTConfig(max_iter=2, constraints=[SpeedLimit(0.01)]))
