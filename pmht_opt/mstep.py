@@ -66,6 +66,28 @@ BACKEND_DEFAULTS: dict[str, dict[str, Any]] = {
 }
 
 
+#: Backend options for platforms whose M-step has constraint rows (inequalities). OSQP: at 1e-9 ADMM
+#: needs tens of thousands of iterations with inequality rows; at 1e-5 with polishing it returns
+#: 'solved' on limits, bounds, obstacles and terminal conditions, but not reliably on VisitAll
+#: (``check_dualgap`` off: OSQP 1.1's duality-gap test is what kept it at 'solved inaccurate').
+#: Polishing recovers the exact answer when ADMM found the active set (visits, terminal conditions,
+#: most obstacle steps), but rarely on speed limits, where
+#: positions stay about 1e-3 from the optimum and violations at the ADMM tolerance; use clarabel for
+#: exact constrained plans.
+CONSTRAINED_DEFAULTS: dict[str, dict[str, Any]] = {
+    "osqp": {
+        "eps_abs": 1e-5,
+        "eps_rel": 1e-5,
+        "rho": 1.0,
+        "polishing": True,
+        "polish_refine_iter": 10,
+        "check_dualgap": False,
+        "check_termination": 25,
+    },
+    "clarabel": BACKEND_DEFAULTS["clarabel"],
+}
+
+
 @dataclass
 class MStepData:
     """What the M-step needs from the E-step: ``W (T, M)``, ``WZ (T, M, 2)`` and the penalty ``r``."""
@@ -672,26 +694,6 @@ class CvxpyMStep(MStep):
         assert x is not None
         return MStepOutput(states=self._with_start(x), iterations=iters, status=raw)
 
-
-#: Backend options for platforms whose M-step has constraint rows (inequalities). OSQP: at 1e-9 ADMM
-#: needs tens of thousands of iterations with inequality rows; at 1e-5 with polishing it returns
-#: 'solved' on every kind of constraint (``check_dualgap`` off: OSQP 1.1's duality-gap test is what
-#: kept it at 'solved inaccurate'). Polishing recovers the exact answer when ADMM found the active
-#: set (visits, terminal conditions, most obstacle steps), but rarely on speed limits, where
-#: positions stay about 1e-3 from the optimum and violations at the ADMM tolerance; use clarabel for
-#: exact constrained plans.
-CONSTRAINED_DEFAULTS: dict[str, dict[str, Any]] = {
-    "osqp": {
-        "eps_abs": 1e-5,
-        "eps_rel": 1e-5,
-        "rho": 1.0,
-        "polishing": True,
-        "polish_refine_iter": 10,
-        "check_dualgap": False,
-        "check_termination": 25,
-    },
-    "clarabel": BACKEND_DEFAULTS["clarabel"],
-}
 
 #: M-step backends by name, and the package each needs.
 MSTEP_BACKENDS: dict[str, str | None] = {

@@ -6,6 +6,7 @@ pmht_opt never touches a display.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,16 +27,20 @@ def _pyplot() -> Any:
 def draw_paths(
     ax: Any,
     scenario: Scenario,
-    positions: np.ndarray,
+    positions: np.ndarray | Sequence[np.ndarray],
     title: str | None = None,
     assignment: np.ndarray | None = None,
 ) -> None:
-    """Draw locales, starts and ``positions (M, T+1, 2)`` on the matplotlib axes ``ax``."""
-    colours = [f"C{i % 10}" for i in range(positions.shape[0])]
-    xmin, xmax, ymin, ymax = scenario.bounds  # type: ignore[misc]
-    ax.add_patch(
-        _pyplot().Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, ls=":", lw=0.8, ec="0.5")
-    )
+    """Draw locales, starts and one polyline per platform on the matplotlib axes ``ax``.
+
+    ``positions`` is ``(M, T+1, 2)`` paths or a list of ``(K_m, 2)`` polylines (e.g. tours).
+    """
+    colours = [f"C{i % 10}" for i in range(len(positions))]
+    if scenario.bounds is not None:
+        xmin, xmax, ymin, ymax = scenario.bounds
+        ax.add_patch(
+            _pyplot().Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, ls=":", lw=0.8, ec="0.5")
+        )
     z = scenario.locales
     if assignment is None:
         ax.plot(z[:, 0], z[:, 1], "x", color="k", ms=5, mew=1.0, label="locales")
@@ -44,7 +49,8 @@ def draw_paths(
             mine = assignment == m
             ax.plot(z[mine, 0], z[mine, 1], "x", color=colour, ms=5, mew=1.2)
     for m, colour in enumerate(colours):
-        ax.plot(positions[m, :, 0], positions[m, :, 1], "-", color=colour, lw=1.4, label=f"platform {m + 1}")
+        line = np.asarray(positions[m])
+        ax.plot(line[:, 0], line[:, 1], "-", color=colour, lw=1.4, label=f"platform {m + 1}")
     s = scenario.start_positions
     ax.plot(s[:, 0], s[:, 1], "s", mfc="none", mec="c", ms=9, mew=2.0, label="starts")
     ax.set_xlabel("X Position")
@@ -56,7 +62,7 @@ def draw_paths(
 
 def plot_paths(
     scenario: Scenario,
-    positions: np.ndarray,
+    positions: np.ndarray | Sequence[np.ndarray],
     path: str | Path,
     title: str | None = None,
     assignment: np.ndarray | None = None,

@@ -21,13 +21,11 @@ import scipy.sparse as sp
 from pmht_opt.constraints.base import (
     DEFAULT_SIDES,
     Block,
-    Constraint,
     ConstraintContext,
     ConstraintReport,
-    check_sides,
-    disc_block,
     positive_number,
 )
+from pmht_opt.constraints.visits import VisitAll
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.model import POS, PX, PY, STATE_DIM, VEL
 from pmht_opt.ordering.tour import TourResult, check_routes
@@ -71,14 +69,13 @@ def sub_batches(scenario: Scenario, routes: Sequence[np.ndarray], split: str = "
     return out
 
 
-class TourVisits(Constraint):
+class TourVisits(VisitAll):
     """Each locale within ``radius`` of its tour platform at one step of its sub-batch.
 
-    The step is the most probable one of the E-step inside the window (re-chosen every iteration).
-    Used by :func:`plan_smoothed`; a cone per locale, or an inner polygon on OSQP.
+    :class:`~pmht_opt.constraints.VisitAll` with the visits fixed by the tour: the platform is the
+    tour's, and the step is the E-step's most probable one inside the locale's window (re-chosen
+    every iteration). Imposed from the first iteration. Used by :func:`plan_smoothed`.
     """
-
-    dynamic = True
 
     def __init__(
         self,
@@ -88,50 +85,32 @@ class TourVisits(Constraint):
         sides: int = DEFAULT_SIDES,
         **kwargs: Any,
     ) -> None:
-        super().__init__(**kwargs)
+        super().__init__(radius, warmup=0, sides=sides, **kwargs)
         self.platform = np.asarray(platform, dtype=int)
         self.windows = np.asarray(windows, dtype=int)
-        self.radius = positive_number("visit_radius", radius)
-        self.sides = check_sides("TourVisits", sides)
 
     @property
     def name(self) -> str:
         return f"TourVisits({self.radius:g})"
 
-    def visit_times(self, ctx: ConstraintContext) -> np.ndarray:
-        """``(N,)`` step of each locale's visit: the E-step's most probable one in its window."""
+    def visits(self, ctx: ConstraintContext) -> tuple[np.ndarray, np.ndarray]:
         if ctx.estep is None:
             raise ConfigError("TourVisits needs the E-step result; it can only be used inside the planner.")
         w = ctx.estep.weights_ntm()
         times = np.empty(self.platform.shape[0], dtype=int)
         for n, (m, (lo, hi)) in enumerate(zip(self.platform, self.windows, strict=True)):
             times[n] = lo + int(np.argmax(w[n, lo - 1 : hi, m]))
-        return times
+        return self.platform, times
 
     def blocks(self, ctx: ConstraintContext) -> list[Block]:
-        times = self.visit_times(ctx)
-        T = ctx.scenario.horizon
-        out = []
-        for m in range(ctx.scenario.n_platforms):
-            mine = np.flatnonzero(self.platform == m)
-            if mine.size:
-                blk = disc_block(
-                    m,
-                    T,
-                    times[mine],
-                    (PX, PY),
-                    ctx.scenario.locales[mine],
-                    np.full(mine.size, self.radius),
-                    ctx.conic,
-                    self.sides,
-                    labels=[f"locale {n}" for n in mine.tolist()],
-                )
-                blk.G = self._fixed_pattern(blk.G, self.windows[mine], blk.h.shape[0] // mine.size, T)
-                out.append(blk)
+        out = super().blocks(ctx)
+        for blk in out:
+            mine = np.flatnonzero(self.platform == blk.platform)
+            blk.G = self._fixed_pattern(blk.G, self.windows[mine], blk.h.shape[0] // mine.size)
         return out
 
     @staticmethod
-    def _fixed_pattern(G: sp.csr_matrix, windows: np.ndarray, rows_per: int, T: int) -> sp.csr_matrix:
+    def _fixed_pattern(G: sp.csr_matrix, windows: np.ndarray, rows_per: int) -> sp.csr_matrix:
         """``G`` with explicit zeros on the position columns of every step of each locale's window.
 
         The visit step moves inside the window from one iteration to the next; with the whole window
@@ -147,11 +126,10 @@ class TourVisits(Constraint):
                     cols.append(STATE_DIM * (steps - 1) + comp)
         r = np.concatenate(rows)
         c = np.concatenate(cols)
-        pad = sp.csr_matrix((np.zeros(r.size), (r, c)), shape=G.shape)
         coo = G.tocoo()
         both = sp.csr_matrix(
             (
-                np.concatenate([coo.data, pad.data]),
+                np.concatenate([coo.data, np.zeros(r.size)]),
                 (np.concatenate([coo.row, r]), np.concatenate([coo.col, c])),
             ),
             shape=G.shape,
@@ -161,16 +139,9 @@ class TourVisits(Constraint):
 
     def violation(self, states: np.ndarray, ctx: ConstraintContext) -> ConstraintReport:
         report = super().violation(states, ctx)
-        times = self.visit_times(ctx)
-        dist = np.hypot(*(states[self.platform, times][:, POS] - ctx.scenario.locales).T)
+        _, times = self.visits(ctx)
         inside = (times >= self.windows[:, 0]) & (times <= self.windows[:, 1])
-        report.details.update(
-            {
-                "visits_met": int(np.sum(dist <= self.radius + 1e-6)),
-                "max_visit_distance": float(np.max(dist)) if dist.size else 0.0,
-                "times_in_sub_batch": int(np.sum(inside)),
-            }
-        )
+        report.details["times_in_sub_batch"] = int(np.sum(inside))
         return report
 
 
@@ -245,6 +216,7 @@ def plan_smoothed(
     cfg = config if config is not None else PMHTConfig()
     if not isinstance(cfg, PMHTConfig):
         raise ConfigError(f"config must be a PMHTConfig, got {type(cfg).__name__}.")
+    visit_radius = positive_number("visit_radius", visit_radius)
     windows = sub_batches(scenario, routes, split)
     N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon
     platform = np.empty(N, dtype=int)
@@ -272,6 +244,6 @@ def plan_smoothed(
     )
     assert result.constraint_context is not None
     result.assignment = platform
-    result.visit_time = visits.visit_times(result.constraint_context)
+    result.visit_time = visits.visits(result.constraint_context)[1]
     result.extras.update({"routes": routes, "sub_batches": windows, "visit_radius": visits.radius})
     return result

@@ -63,10 +63,8 @@ class Terminal(Constraint):
 
     @staticmethod
     def _points(name: str, value: Any) -> np.ndarray:
-        arr = np.asarray(value, dtype=float) if not isinstance(value, str) else np.array([])
-        if arr.ndim == 1:
-            arr = point_array(f"Terminal.{name}", arr, (2,))[None, :]
-        return point_array(f"Terminal.{name}", arr, (-1, 2))
+        arr = point_array(f"Terminal.{name}", value, (-1,) if np.ndim(value) == 1 else (-1, 2))
+        return point_array(f"Terminal.{name}", arr.reshape(1, -1) if arr.ndim == 1 else arr, (-1, 2))
 
     @property
     def name(self) -> str:

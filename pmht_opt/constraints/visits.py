@@ -124,32 +124,34 @@ class VisitAll(Constraint):
     def active(self, iteration: int, max_iter: int) -> bool:
         return iteration > min(self.warmup, max_iter - 1)
 
+    def visits(self, ctx: ConstraintContext) -> tuple[np.ndarray, np.ndarray]:
+        """``(platform (N,), time (N,))`` of the visit each locale must make in this iteration."""
+        return choose_visits(ctx, self.radius)
+
     def blocks(self, ctx: ConstraintContext) -> list[Block]:
-        platform, time = choose_visits(ctx, self.radius)
-        T = ctx.scenario.horizon
+        platform, time = self.visits(ctx)
         out = []
         for m in range(ctx.scenario.n_platforms):
             mine = np.flatnonzero(platform == m)
-            if mine.size == 0:
-                continue
-            out.append(
-                disc_block(
-                    m,
-                    T,
-                    time[mine],
-                    (PX, PY),
-                    ctx.scenario.locales[mine],
-                    np.full(mine.size, self.radius),
-                    ctx.conic,
-                    self.sides,
-                    labels=[f"locale {n}" for n in mine.tolist()],
+            if mine.size:
+                out.append(
+                    disc_block(
+                        m,
+                        ctx.scenario.horizon,
+                        time[mine],
+                        (PX, PY),
+                        ctx.scenario.locales[mine],
+                        np.full(mine.size, self.radius),
+                        ctx.conic,
+                        self.sides,
+                        labels=[f"locale {n}" for n in mine.tolist()],
+                    )
                 )
-            )
         return out
 
     def violation(self, states: np.ndarray, ctx: ConstraintContext) -> ConstraintReport:
         report = super().violation(states, ctx)
-        platform, time = choose_visits(ctx, self.radius)
+        platform, time = self.visits(ctx)
         dist = np.hypot(*(states[platform, time][:, POS] - ctx.scenario.locales).T)
         report.details.update(
             {

@@ -250,37 +250,14 @@ class TourResult:
 
     def plot(self, path: str | Path, scenario: Scenario | None = None, title: str | None = None) -> Path:
         """Write a PNG of the starts (boxes), locales (crosses) and routes (one colour per platform)."""
-        from pmht_opt.plotting import _pyplot
+        from pmht_opt.plotting import plot_paths
 
         sc = self._scenario(scenario)
-        check_routes(sc, self.routes)
-        plt = _pyplot()
-        fig, ax = plt.subplots(figsize=(5.5, 5.5))
-        try:
-            starts = sc.start_positions
-            xmin, xmax, ymin, ymax = sc.bounds  # type: ignore[misc]
-            ax.add_patch(
-                plt.Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, ls=":", lw=0.8, ec="0.5")
-            )
-            for m, route in enumerate(self.routes):
-                colour = f"C{m % 10}"
-                pts = np.vstack([starts[m : m + 1], sc.locales[route]])
-                ax.plot(pts[:, 0], pts[:, 1], "-", color=colour, lw=1.3, label=f"platform {m + 1}")
-                ax.plot(pts[1:, 0], pts[1:, 1], "x", color=colour, ms=5, mew=1.2)
-            ax.plot(starts[:, 0], starts[:, 1], "s", mfc="none", mec="c", ms=9, mew=2.0, label="starts")
-            ax.set_xlabel("X Position")
-            ax.set_ylabel("Y Position")
-            ax.set_aspect("equal", adjustable="datalim")
-            label = title if title is not None else f"{self.method}: total distance {self.total_distance:.2f}"
-            ax.set_title(label, fontsize=9)
-            ax.legend(fontsize=7, loc="best")
-            fig.tight_layout()
-            out = Path(path)
-            out.parent.mkdir(parents=True, exist_ok=True)
-            fig.savefig(out, dpi=120)
-        finally:
-            plt.close(fig)
-        return out
+        routes = check_routes(sc, self.routes)
+        starts = sc.start_positions
+        legs = [np.vstack([starts[m : m + 1], sc.locales[route]]) for m, route in enumerate(routes)]
+        label = title if title is not None else f"{self.method}: total distance {self.total_distance:.2f}"
+        return plot_paths(sc, legs, path, title=label, assignment=self.assignment)
 
 
 def _check_int(name: str, value: Any, minimum: int) -> int:
