@@ -431,3 +431,27 @@ def test_check_routes_returns_intp_arrays() -> None:
     sc = instance(4, 2, 0)
     routes = check_routes(sc, ([1, 0], np.array([3, 2], dtype=np.int32)))
     assert all(r.dtype == np.intp for r in routes)
+
+
+def test_ortools_after_cvxpy_loaded_highspy() -> None:
+    """libortools and highspy (a cvxpy dependency) clash in one process; the adapter then solves in
+    a fresh process. Run in a clean interpreter so the load order is the bad one."""
+    pytest.importorskip("ortools")
+    import subprocess
+    import textwrap
+
+    code = textwrap.dedent(
+        """
+        import cvxpy as cp
+        x = cp.Variable()
+        cp.Problem(cp.Minimize(x ** 2), [x >= 1]).solve(solver="CLARABEL")
+        from pmht_opt import Scenario, solve_ortools
+        sc = Scenario(locales=[[i, i % 3] for i in range(8)], starts=[[0, 0], [5, 5]], horizon=50)
+        tour = solve_ortools(sc, time_limit=0.3)
+        assert sorted(int(n) for r in tour.routes for n in r) == list(range(8))
+        print("ok")
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().endswith("ok")

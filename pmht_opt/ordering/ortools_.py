@@ -16,8 +16,10 @@ drives the shortfall to zero; a final answer still short raises SolverError.
 
 from __future__ import annotations
 
+import multiprocessing
 import numbers
 import time
+from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -56,13 +58,21 @@ METAHEURISTICS = (
 )
 
 
+class _LoadError(Exception):
+    """ortools is installed but its native library cannot be loaded into this process."""
+
+
 def _import_ortools() -> tuple[Any, Any]:
     try:
         from ortools.constraint_solver import pywrapcp, routing_enums_pb2
-    except ImportError as err:
+    except ModuleNotFoundError as err:
         raise MissingDependencyError(
             'The OR-Tools ordering needs the ortools package: pip install "pmht-opt[ortools]".'
         ) from err
+    except ImportError as err:
+        # libortools bundles HiGHS and clashes with highspy (a cvxpy dependency) once the latter is
+        # loaded, e.g. after a plan with the cvxpy backend: measured with ortools 9.15, highspy 1.15.
+        raise _LoadError(str(err)) from err
     return pywrapcp, routing_enums_pb2
 
 
@@ -156,7 +166,16 @@ def solve_ortools(
         solution_limit = _check_int("solution_limit", solution_limit, 1)
     if not isinstance(log_search, bool):
         raise ConfigError(f"log_search: expected True or False, got {log_search!r}.")
-    pywrapcp, enums = _import_ortools()
+    try:
+        pywrapcp, enums = _import_ortools()
+    except _LoadError:
+        # Solve in a fresh process, where nothing else has claimed the HiGHS symbols.
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(1, mp_context=ctx) as pool:
+            job = pool.submit(
+                solve_ortools, scenario, limit, min_tour, first, meta, solution_limit, log_search
+            )
+            return job.result()
 
     N, M = scenario.n_locales, scenario.n_platforms
     cost, scale = arc_costs(scenario)
