@@ -205,10 +205,7 @@ def _impossible(soft: bool = False) -> list:
     ]
 
 
-@pytest.mark.parametrize(
-    "solver",
-    ["clarabel", pytest.param("osqp", marks=pytest.mark.xfail(raises=SolverError, strict=False)), "cvxpy"],
-)
+@pytest.mark.parametrize("solver", ["clarabel", "osqp", "cvxpy"])
 def test_infeasible_constraints_raise(solver: str) -> None:
     sc = _small()
     with pytest.raises(InfeasibleError) as err:
