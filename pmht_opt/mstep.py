@@ -145,6 +145,7 @@ class MStep(abc.ABC):
         self.x0 = scenario.initial_states
         #: Whether the backend takes second-order cones (else constraints give inner polygons).
         self.conic = True
+        self._static: dict[tuple[int, bool], list[Imposed]] = {}
 
     @abc.abstractmethod
     def solve(self, data: MStepData) -> MStepOutput:
@@ -158,8 +159,17 @@ class MStep(abc.ABC):
         for con in self.constraints:
             if not con.active(ctx.iteration, ctx.max_iter):
                 continue
-            for blk in con.blocks(ctx):
-                out.setdefault(blk.platform, []).append(Imposed.of(blk, con))
+            if con.dynamic:
+                items = [Imposed.of(blk, con) for blk in con.blocks(ctx)]
+            else:
+                # The same rows every iteration: written once, and the very same objects handed out
+                # again, so a platform QP can tell that nothing changed and skip re-assembling them.
+                key = (id(con), ctx.conic)
+                if key not in self._static:
+                    self._static[key] = [Imposed.of(blk, con) for blk in con.blocks(ctx)]
+                items = self._static[key]
+            for item in items:
+                out.setdefault(item.block.platform, []).append(item)
         return out
 
     def close(self) -> None:  # noqa: B027 - most backends hold nothing to release
@@ -304,6 +314,7 @@ class PlatformQP:
         self.session: solvers.QPSession | None = None
         self.extra: ExtraRows | None = None
         self._key: tuple[object, ...] | None = None
+        self._imposed: list[Imposed] = []
 
     def _P(self, n_slack: int) -> sp.csc_matrix:
         # CSC arrays by hand so the position entries stay stored while their weight is zero; slack
@@ -343,6 +354,18 @@ class PlatformQP:
         self, W: np.ndarray, WZ: np.ndarray, r: float, imposed: list[Imposed] | None = None
     ) -> solvers.QPSolution:
         """Solve for weights ``W (T,)``, weighted locale sums ``WZ (T, 2)`` and constraint blocks."""
+        imposed = imposed or []
+        unchanged = (
+            self.session is not None
+            and len(imposed) == len(self._imposed)
+            and all(a is b for a, b in zip(imposed, self._imposed, strict=True))
+        )
+        self._imposed = list(imposed)
+        if unchanged:  # the same constraint rows as last time: only the weights moved
+            q = self._cost(W, WZ, r, self.extra)
+            assert self.session is not None
+            self.session.update(P_data=self.diag[self.stored], q=q)
+            return self.session.solve()
         extra = assemble(imposed, self.layout.n, self.col_map) if imposed else None
         self.extra = extra
         key = None if extra is None else (extra.n_slack, *extra.pattern_key())
