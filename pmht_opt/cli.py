@@ -7,8 +7,10 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
-from pmht_opt.exceptions import PmhtOptError
+from pmht_opt.anneal import Anneal
+from pmht_opt.exceptions import ConfigError, PmhtOptError
 from pmht_opt.mstep import MSTEP_BACKENDS, available_backends
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.progress import ProgressBar
@@ -25,6 +27,14 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="re-estimate the time prior each iteration (the paper's literal setting)",
     )
+    p.add_argument(
+        "--anneal",
+        nargs=2,
+        metavar=("START", "ITERATIONS"),
+        default=None,
+        help="anneal r geometrically from START over the first ITERATIONS iterations (default 1.0 30)",
+    )
+    p.add_argument("--no-anneal", action="store_true", help="plain EM: the scenario's r from the start")
     p.add_argument("--paper", action="store_true", help="the paper's settings (PMHTConfig.paper())")
     p.add_argument("--out", type=Path, default=None, help="write the figure here (PNG, PDF, SVG)")
     p.add_argument("--json", type=Path, default=None, help="write the metrics and paths here")
@@ -32,7 +42,17 @@ def _add_planner_options(p: argparse.ArgumentParser) -> None:
 
 
 def _config(args: argparse.Namespace) -> PMHTConfig:
-    common = {"solver": args.solver, "max_iter": args.iterations, "tol": args.tol}
+    common: dict[str, Any] = {"solver": args.solver, "max_iter": args.iterations, "tol": args.tol}
+    if args.no_anneal:
+        common["anneal"] = None
+    elif args.anneal is not None:
+        try:
+            start, iters = float(args.anneal[0]), int(args.anneal[1])
+        except ValueError:
+            raise ConfigError(
+                f"--anneal: expected START (a number) and ITERATIONS (an integer), got {args.anneal}."
+            ) from None
+        common["anneal"] = Anneal(start=start, iterations=iters)
     if args.paper:
         return PMHTConfig.paper(**common)
     return PMHTConfig(update_time_prior=args.update_time_prior, **common)
@@ -80,6 +100,7 @@ def _report(result: PlanResult) -> None:
         ),
         ("solver", m["solver"]),
         ("iterations", f"{m['iterations']}" + (" (converged)" if m["converged"] else "")),
+        ("annealing", m["anneal"]),
         ("total distance", f"{m['total_distance']:.2f}"),
         (f"coverage within {m['coverage_radius']}", f"{m['coverage']:.1%}"),
         ("mean / max miss distance", f"{m['mean_miss_distance']:.3f} / {m['max_miss_distance']:.3f}"),

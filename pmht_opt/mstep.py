@@ -66,6 +66,25 @@ BACKEND_DEFAULTS: dict[str, dict[str, Any]] = {
 }
 
 
+#: Settings for one retry when a solve fails without an infeasibility verdict. Clarabel without
+#: iterative refinement (the fast default above) can stop with 'InsufficientProgress' on
+#: ill-scaled constrained M-steps (seen with VisitAll while annealing, r = 0.3); with refinement it
+#: solves them.
+FALLBACK_SETTINGS: dict[str, dict[str, Any]] = {
+    "clarabel": {"iterative_refinement_enable": True},
+}
+
+#: Clarabel through cvxpy on the unconstrained M-step: cvxpy's form keeps the raw penalty weights, and
+#: with wide ones (annealing starts at r = 1) the default 1e-8 gap left positions 2e-4 from RTS on
+#: scenario A; at 1e-12 they are within 3e-7, at no measurable cost.
+CVXPY_CLARABEL_TIGHT: dict[str, Any] = {
+    "tol_gap_abs": 1e-12,
+    "tol_gap_rel": 1e-12,
+    "tol_feas": 1e-12,
+    "tol_ktratio": 1e-10,
+}
+
+
 #: Backend options for platforms whose M-step has constraint rows (inequalities). OSQP: at 1e-9 ADMM
 #: needs tens of thousands of iterations with inequality rows; at 1e-5 with polishing it returns
 #: 'solved' on limits, bounds, obstacles and terminal conditions, but not reliably on VisitAll
@@ -157,7 +176,7 @@ class MStep(abc.ABC):
         if ctx is None:
             return out
         for con in self.constraints:
-            if not con.active(ctx.iteration, ctx.max_iter):
+            if not con.active(ctx.iteration, ctx.max_iter, ctx.settled):
                 continue
             if con.dynamic:
                 items = [Imposed.of(blk, con) for blk in con.blocks(ctx)]
@@ -290,11 +309,13 @@ class PlatformQP:
         session_class: type[solvers.QPSession],
         settings: dict[str, Any],
         constrained_settings: dict[str, Any] | None = None,
+        fallback_settings: dict[str, Any] | None = None,
     ) -> None:
         self.layout = lay = QPLayout(1, horizon)
         self.session_class = session_class
         self.settings = settings
         self.constrained_settings = settings if constrained_settings is None else constrained_settings
+        self.fallback_settings = fallback_settings
         t_idx = np.arange(1, horizon + 1)
         self.px = lay.x(0, t_idx, PX)
         self.py = lay.x(0, t_idx, PY)
@@ -365,7 +386,7 @@ class PlatformQP:
             q = self._cost(W, WZ, r, self.extra)
             assert self.session is not None
             self.session.update(P_data=self.diag[self.stored], q=q)
-            return self.session.solve()
+            return self._fallback(self.session.solve(), q)
         extra = assemble(imposed, self.layout.n, self.col_map) if imposed else None
         self.extra = extra
         key = None if extra is None else (extra.n_slack, *extra.pattern_key())
@@ -387,7 +408,22 @@ class PlatformQP:
             self.session.update(P_data=self.diag[self.stored], q=q)
         else:
             self.session.update(P_data=self.diag[self.stored], q=q, A_data=A.data, b=b)
-        return self.session.solve()
+        return self._fallback(self.session.solve(), q)
+
+    def _fallback(self, sol: solvers.QPSolution, q: np.ndarray) -> solvers.QPSolution:
+        """Re-solve once with the backend's slower, more robust settings if the fast ones failed.
+
+        Only for failures that are not a verdict on the problem (not infeasible): e.g. Clarabel's
+        ``InsufficientProgress`` without iterative refinement.
+        """
+        if self.fallback_settings is None or sol.usable(False) or sol.status in solvers.INFEASIBLE:
+            return sol
+        A, b, cones = self._constraints(self.extra)
+        n_slack = 0 if self.extra is None else self.extra.n_slack
+        problem = solvers.QPProblem(P=self._P(n_slack), q=q, A=A, b=b, cones=cones)
+        options = self.settings if self.extra is None else self.constrained_settings
+        retry = self.session_class(problem, **{**options, **self.fallback_settings}).solve()
+        return retry if retry.usable(False) else sol
 
     def slacks(self, x: np.ndarray) -> np.ndarray:
         """The soft constraints' slack values in a solution vector."""
@@ -424,8 +460,19 @@ class QPMStep(MStep):
         self.conic = session_class.supports_soc
         self.options = {**BACKEND_DEFAULTS.get(solver, {}), **self.settings}
         self.constrained_options = {**CONSTRAINED_DEFAULTS.get(solver, {}), **self.settings}
+        fallback = FALLBACK_SETTINGS.get(solver)
+        if fallback is not None and set(fallback) & set(self.settings):
+            fallback = None  # the caller chose these settings; do not second-guess them
         self.blocks = [
-            PlatformQP(self.model, self.x0[m], self.T, session_class, self.options, self.constrained_options)
+            PlatformQP(
+                self.model,
+                self.x0[m],
+                self.T,
+                session_class,
+                self.options,
+                self.constrained_options,
+                fallback,
+            )
             for m in range(self.M)
         ]
         self.threads = max(1, min(int(threads), self.M))
@@ -577,6 +624,8 @@ class CvxpyMStep(MStep):
             self.cvxpy_solver = check_solver_name(str(opts.pop("cvxpy_solver", DEFAULT_SOLVER)))
         except solvers.UnknownSolverError as err:
             raise UnknownSolverError(str(err)) from err
+        if self.cvxpy_solver == "CLARABEL" and not self.constraints:
+            opts = {**CVXPY_CLARABEL_TIGHT, **opts}
         self.options = opts
         M, T = self.M, self.T
         F, L = self.model.F, self.model.L

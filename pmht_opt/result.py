@@ -26,12 +26,25 @@ class IterationHistory:
     ``objective[0]`` is the EM objective of the initial (standing) paths and ``objective[i]`` the one
     after iteration ``i``; the time and iteration arrays have one entry per iteration (``estep_time``
     has one more: the final E-step that scores the last paths).
+
+    ``r[i]`` is the fitting penalty ``objective[i]`` is computed with: iteration ``i``'s ``r`` under an
+    annealing schedule (``r[0] = r[1]``), otherwise the scenario's ``r`` throughout. EM guarantees
+    ``objective[i] >= objective[i-1]`` (without constraints) whenever ``r[i] == r[i-1]``.
     """
 
     objective: np.ndarray
     estep_time: np.ndarray
     mstep_time: np.ndarray
     solver_iterations: np.ndarray
+    r: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def monotone_from(self) -> int:
+        """First index from which ``r`` no longer changes (the objective is monotone from there on)."""
+        if self.r.size == 0:
+            return 0
+        changed = np.nonzero(self.r[1:] != self.r[:-1])[0]
+        return int(changed[-1]) + 1 if changed.size else 0
 
     @property
     def n_iterations(self) -> int:
@@ -60,6 +73,8 @@ class PlanResult:
     constraint_context
         The context of the last M-step (its linearisation point and E-step), against which
         :meth:`constraint_reports` judges the constraints whose rows depend on the iterate.
+    anneal
+        Description of the annealing schedule of ``r`` the plan was made with (``"none"``).
     """
 
     scenario: Scenario
@@ -75,6 +90,7 @@ class PlanResult:
     extras: dict[str, Any] = field(default_factory=dict)
     constraints: tuple[Constraint, ...] = ()
     constraint_context: ConstraintContext | None = None
+    anneal: str = "none"
 
     @property
     def positions(self) -> np.ndarray:
@@ -177,6 +193,7 @@ class PlanResult:
             "final_objective": float(self.history.objective[-1]),
             "wall_time": float(self.wall_time),
             "solver": self.solver,
+            "anneal": self.anneal,
             "constraints": {
                 r.name: {
                     "soft": r.soft,

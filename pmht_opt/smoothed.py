@@ -227,6 +227,7 @@ def plan_smoothed(
         cfg,
         update_time_prior=False,
         update_platform_prior=False,
+        anneal=None,
         constraints=(*cfg.constraints, visits),
     )
     time_prior = np.zeros((N, T))

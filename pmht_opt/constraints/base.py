@@ -126,6 +126,8 @@ class ConstraintContext:
         The run's iteration budget.
     conic
         Whether the backend takes second-order cones; if not, give inner polygons.
+    settled
+        First iteration that uses the scenario's ``r`` (after an annealing schedule; 1 without one).
     """
 
     scenario: Scenario
@@ -134,6 +136,7 @@ class ConstraintContext:
     iteration: int = 1
     max_iter: int = 1
     conic: bool = True
+    settled: int = 1
 
 
 @dataclass
@@ -257,8 +260,11 @@ class Constraint(abc.ABC):
                 f"{self.name}: platforms {bad} do not exist (the scenario has {scenario.n_platforms})."
             )
 
-    def active(self, iteration: int, max_iter: int) -> bool:
-        """Whether the constraint is imposed at EM ``iteration``; always, unless a kind warms up."""
+    def active(self, iteration: int, max_iter: int, settled: int = 1) -> bool:
+        """Whether the constraint is imposed at EM ``iteration``; always, unless a kind warms up.
+
+        ``settled`` is the first iteration at the scenario's ``r`` (annealing over).
+        """
         return True
 
     @abc.abstractmethod

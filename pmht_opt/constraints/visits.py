@@ -96,8 +96,10 @@ class VisitAll(Constraint):
         Visit radius.
     warmup
         EM iterations run without the constraint first, so the MAP times come from paths that already
-        pass near the locales (from the standing start every time is equally likely). The constraint is
-        imposed from iteration ``min(warmup, max_iter - 1) + 1`` on, so the returned plan always has it.
+        pass near the locales (from the standing start every time is equally likely). They are counted
+        from the end of an annealing schedule (the wide early penalties blur the MAP times): the
+        constraint is imposed from iteration ``min(settled - 1 + warmup, max_iter - 1) + 1`` on, where
+        ``settled`` is the first iteration at the scenario's ``r``, so the returned plan always has it.
     sides
         Sides of the inner polygon on OSQP.
     soft, weight, platforms
@@ -121,8 +123,8 @@ class VisitAll(Constraint):
     def name(self) -> str:
         return f"VisitAll({self.radius:g})"
 
-    def active(self, iteration: int, max_iter: int) -> bool:
-        return iteration > min(self.warmup, max_iter - 1)
+    def active(self, iteration: int, max_iter: int, settled: int = 1) -> bool:
+        return iteration > min(settled - 1 + self.warmup, max_iter - 1)
 
     def visits(self, ctx: ConstraintContext) -> tuple[np.ndarray, np.ndarray]:
         """``(platform (N,), time (N,))`` of the visit each locale must make in this iteration."""
