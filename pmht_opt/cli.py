@@ -148,6 +148,37 @@ def _cmd_solvers(args: argparse.Namespace) -> int:
     return 0
 
 
+#: ``pmht-opt study NAME``: the module of :mod:`pmht_opt.studies` that implements it. Each module
+#: has ``add_arguments(parser)`` and ``main(args) -> int``.
+STUDIES = {
+    "table1": "the paper's Table 1 and Figures 1-5, with what the paper lacked",
+    "solvers": "M-step backends against the kalman reference: time, iterations, gaps",
+    "scaling": "plan time and peak memory as locales, horizon and platforms grow",
+    "anneal": "plain against annealed EM with both time-prior settings",
+}
+
+
+def _add_study_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", type=Path, default=Path("study-results"), help="directory for results")
+    p.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
+    p.add_argument(
+        "--dask-scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run the trials on the Dask cluster at ADDRESS (e.g. tcp://host:8786); needs the dask extra",
+    )
+    p.add_argument("--fresh", action="store_true", help="start the results table afresh (default: resume)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _cmd_study(args: argparse.Namespace) -> int:
+    import importlib
+
+    module = importlib.import_module(f"pmht_opt.studies.{args.study}")
+    code: int = module.main(args)
+    return code
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``pmht-opt``."""
     parser = argparse.ArgumentParser(
@@ -174,6 +205,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     solv = sub.add_parser("solvers", help="list the M-step backends and whether they are installed")
     solv.set_defaults(func=_cmd_solvers)
+
+    study = sub.add_parser("study", help="run one of the studies (Monte Carlo, benchmarks) into a directory")
+    names = study.add_subparsers(dest="study", required=True)
+    import importlib
+
+    for name, text in STUDIES.items():
+        sp = names.add_parser(name, help=text, description=text)
+        _add_study_options(sp)
+        importlib.import_module(f"pmht_opt.studies.{name}").add_arguments(sp)
+        sp.set_defaults(func=_cmd_study)
     return parser
 
 

@@ -99,6 +99,7 @@ def run(
     workers: int = 1,
     executor: Any = None,
     progress: bool = True,
+    resume: bool = True,
 ) -> list[dict[str, Any]]:
     """Run the study into ``out_dir`` (``anneal.csv``, ``anneal_summary.json``, ``anneal.md``)."""
     params = [
@@ -106,11 +107,36 @@ def run(
     ]
     rows = run_trials(
         trial, params, out_dir / "anneal.csv", executor=executor, workers=workers, progress=progress,
-        label="anneal study",
+        label="anneal study", resume=resume,
     )
     table = summary(rows)
+    out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "anneal_summary.json").write_text(json.dumps(table, indent=1) + "\n")
     text = markdown(table)
     (out_dir / "anneal.md").write_text(text + "\n")
     print(text)
     return table
+
+
+def add_arguments(p: Any) -> None:
+    """Options of ``pmht-opt study anneal``."""
+    p.add_argument("--trials", type=int, default=100, help="trials per scenario and configuration")
+    p.add_argument(
+        "--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS), help="configurations to run"
+    )
+
+
+def main(args: Any) -> int:
+    """``pmht-opt study anneal``."""
+    from pmht_opt.studies.common import executor_from_args
+
+    with executor_from_args(args) as ex:
+        run(
+            args.out,
+            trials=args.trials,
+            configs=tuple(args.configs),
+            executor=ex,
+            progress=not args.quiet,
+            resume=not args.fresh,
+        )
+    return 0
