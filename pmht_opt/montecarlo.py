@@ -289,20 +289,26 @@ def run_trials(
         bar.update(len(unique) - len(todo), suffix="(resumed)")
     own = executor is None
     ex = local_executor(workers) if executor is None else executor
-    try:
-        futures = {ex.submit(_call, fn, by_id[i]): i for i in todo}
+    def finished() -> Iterator[tuple[str, Row]]:
+        if isinstance(ex, InlineExecutor):  # one at a time, saved as each finishes
+            for key in todo:
+                yield key, _call(fn, by_id[key])
+            return
+        futures = {ex.submit(_call, fn, by_id[key]): key for key in todo}
         try:
             for fut in cf.as_completed(futures):
-                key = futures[fut]
-                rows[key] = {"trial": key, **by_id[key], **fut.result()}
-                save()
-                if bar is not None:
-                    failed = sum(1 for r in rows.values() if r.get("error"))
-                    bar.update(1, suffix=f"{failed} failed" if failed else "")
-        except BaseException:
+                yield futures[fut], fut.result()
+        finally:
             for fut in futures:
                 fut.cancel()
-            raise
+
+    try:
+        for key, result in finished():
+            rows[key] = {"trial": key, **by_id[key], **result}
+            save()
+            if bar is not None:
+                failed = sum(1 for r in rows.values() if r.get("error"))
+                bar.update(1, suffix=f"{failed} failed" if failed else "")
     finally:
         if bar is not None:
             bar.close()
