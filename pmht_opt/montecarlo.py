@@ -40,6 +40,15 @@ TrialFn = Callable[..., Mapping[str, Any]]
 TYPES = ("int", "float", "bool", "str", "json")
 
 
+def _file_mode() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+_FILE_MODE = _file_mode()
+
+
 def trial_id(params: Mapping[str, Any]) -> str:
     """A stable identifier of a trial: its parameters as canonical JSON."""
     try:
@@ -140,11 +149,12 @@ def write_table(path: str | Path, rows: Sequence[Mapping[str, Any]]) -> Path:
     columns = list(schema)
     path.parent.mkdir(parents=True, exist_ok=True)
 
-    def dump(target: Path, write: Callable[[TextIO], None]) -> None:
+    def dump(target: Path, write: Callable[[TextIO], object]) -> None:
         fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=target.name, suffix=".tmp")
         try:
             with os.fdopen(fd, "w", newline="") as fh:
                 write(fh)
+            os.chmod(tmp, _FILE_MODE)  # mkstemp makes it private; a results table is not
             os.replace(tmp, target)
         except BaseException:
             with contextlib.suppress(OSError):
@@ -289,6 +299,7 @@ def run_trials(
         bar.update(len(unique) - len(todo), suffix="(resumed)")
     own = executor is None
     ex = local_executor(workers) if executor is None else executor
+
     def finished() -> Iterator[tuple[str, Row]]:
         if isinstance(ex, InlineExecutor):  # one at a time, saved as each finishes
             for key in todo:

@@ -110,9 +110,12 @@ def test_history_objective_uses_the_iterations_r(small_b: po.Scenario) -> None:
     cfg = PMHTConfig(max_iter=6, anneal=Anneal(1.0, 15), update_platform_prior=False)
     res = plan_pmht(small_b, cfg)
     h = res.history
-    expected = small_b.model.log_prior(res.states) + po.estep.estep(
-        small_b.locales, res.states[:, 1:, :][..., [0, 3]], None, None, h.r[6]
-    ).log_likelihood
+    expected = (
+        small_b.model.log_prior(res.states)
+        + po.estep.estep(
+            small_b.locales, res.states[:, 1:, :][..., [0, 3]], None, None, h.r[6]
+        ).log_likelihood
+    )
     assert h.objective[6] == pytest.approx(expected, rel=1e-12)
     assert h.r[6] == pytest.approx(1.0 * 0.01 ** (5 / 14), rel=1e-12)
 

@@ -9,7 +9,7 @@ than 1 unit (scenario B starts at x = -1, exactly 1 unit outside, which therefor
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -37,9 +37,7 @@ def trial(kind: str, seed: int, config: str, solver: str = "clarabel") -> dict[s
     """One plan of scenario ``kind`` (seed ``seed``) with configuration ``config``."""
     anneal, time_prior = CONFIGS[config]
     sc = paper_scenario(kind, seed=seed)
-    res = plan_pmht(
-        sc, PMHTConfig(solver=solver, anneal=anneal, update_time_prior=time_prior, threads=1)
-    )
+    res = plan_pmht(sc, PMHTConfig(solver=solver, anneal=anneal, update_time_prior=time_prior, threads=1))
     m = res.metrics()
     return {
         "distance": m["total_distance"],
@@ -50,7 +48,7 @@ def trial(kind: str, seed: int, config: str, solver: str = "clarabel") -> dict[s
     }
 
 
-def summary(rows: list[Mapping[str, Any]]) -> list[dict[str, Any]]:
+def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """Per (scenario, configuration): distance statistics, mean coverage, runs leaving the area."""
     out = []
     keys = sorted({(r["kind"], r["config"]) for r in rows}, key=lambda k: (k[0], list(CONFIGS).index(k[1])))
@@ -63,7 +61,9 @@ def summary(rows: list[Mapping[str, Any]]) -> list[dict[str, Any]]:
                 "scenario": kind,
                 "config": config,
                 "trials": dist["n"],
-                "failed": sum(1 for r in rows if r["kind"] == kind and r["config"] == config and r.get("error")),
+                "failed": sum(
+                    1 for r in rows if r["kind"] == kind and r["config"] == config and r.get("error")
+                ),
                 "mean_distance": dist["mean"],
                 "median_distance": dist["median"],
                 "max_distance": dist["max"],
@@ -75,7 +75,7 @@ def summary(rows: list[Mapping[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
-def markdown(table: list[Mapping[str, Any]]) -> str:
+def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The summary as a markdown table."""
     lines = [
         "| scenario | configuration | trials | mean distance | median | max | mean coverage (0.3) "
@@ -102,12 +102,16 @@ def run(
     resume: bool = True,
 ) -> list[dict[str, Any]]:
     """Run the study into ``out_dir`` (``anneal.csv``, ``anneal_summary.json``, ``anneal.md``)."""
-    params = [
-        {"kind": k, "seed": s, "config": c} for c in configs for k in kinds for s in range(trials)
-    ]
+    params = [{"kind": k, "seed": s, "config": c} for c in configs for k in kinds for s in range(trials)]
     rows = run_trials(
-        trial, params, out_dir / "anneal.csv", executor=executor, workers=workers, progress=progress,
-        label="anneal study", resume=resume,
+        trial,
+        params,
+        out_dir / "anneal.csv",
+        executor=executor,
+        workers=workers,
+        progress=progress,
+        label="anneal study",
+        resume=resume,
     )
     table = summary(rows)
     out_dir.mkdir(parents=True, exist_ok=True)
