@@ -84,6 +84,8 @@ def _encode(value: Any, kind: str) -> str:
 
 
 def _decode(text: str, kind: str) -> Any:
+    if kind == "str":
+        return text
     if text == "":
         return None
     if kind == "int":
@@ -139,13 +141,12 @@ def read_table(path: str | Path) -> list[Row]:
 def write_table(path: str | Path, rows: Sequence[Mapping[str, Any]]) -> Path:
     """Write ``rows`` as a typed CSV table (atomically: a reader never sees half a file)."""
     path = Path(path)
-    schema: dict[str, str] = {}
+    kinds: dict[str, str | None] = {}
     for row in rows:
         for key, value in row.items():
-            if value is not None:
-                schema[key] = _merge_kind(schema.get(key), _type_of(value))
-            else:
-                schema.setdefault(key, "str")
+            old = kinds.get(key)
+            kinds[key] = old if value is None else _merge_kind(old, _type_of(value))
+    schema = {key: kind or "str" for key, kind in kinds.items()}  # all-empty columns hold strings
     columns = list(schema)
     path.parent.mkdir(parents=True, exist_ok=True)
 

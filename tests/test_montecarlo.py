@@ -67,6 +67,7 @@ def test_table_round_trip_keeps_types(tmp_path: Path) -> None:
     path = write_table(tmp_path / "t.csv", rows)
     back = read_table(path)
     assert back[0] == {"a": 1, "b": 2.5, "c": "x,y", "d": True, "e": [1, 2], "f": None}
+    assert back[2]["c"] == ""  # an empty string stays a string
     assert back[1]["b"] == 3.0 and isinstance(back[1]["b"], float)
     assert back[1]["e"] == {"k": 1}
     assert back[2]["a"] == 3 and back[2]["b"] == 0.1 and back[2]["d"] is True and back[2]["e"] == [0, 1]
