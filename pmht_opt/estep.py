@@ -3,20 +3,45 @@
 Everything is in the log domain: with ``r = 0.01`` and distances of a few units the likelihoods
 ``exp(-d^2 / 2r)`` underflow. Arrays are kept two-dimensional, ``(N, T*M)`` with column ``t*M + m``,
 so that each step is one BLAS call or one ufunc pass.
+
+Gating. When ``r`` is small only the (locale, time, platform) triples near the locale matter: a weight
+more than ``G`` nats below its locale's largest weight is below ``exp(-G)`` of it. :func:`estep` with
+``gate=G`` keeps exactly the triples whose log weight is within ``G`` of their locale's best and sets
+the others to zero (as underflow already does far away), finding them without forming the ``N x T x M``
+array: a KD-tree per platform gives each locale's nearest path point, whose log weight (priors
+included) is a lower bound ``L_n`` on the best; a triple can only be kept if its distance satisfies
+``d^2 <= 2r (max_t log pi^tau + log pi^k - L_n + G)``, which a radius query returns. The weights are
+then a ``scipy.sparse`` CSR matrix with the dense layout. With ``G = log(T M) + 37`` (``"auto"``) the
+mass dropped from a locale is below ``exp(-37) < 1e-16`` of its normaliser: the result equals the
+dense one to rounding. Where the gate would admit too much (a wide ``r``, e.g. early in annealing) the
+dense computation runs instead.
 """
 
 from __future__ import annotations
 
+import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
-from pmht_opt.exceptions import PmhtOptError
+from pmht_opt.exceptions import ConfigError, PmhtOptError
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 #: Above this coordinate magnitude the expanded form |z|^2 - 2 z.p + |p|^2 could overflow.
 _SAFE_SCALE = 1e100
-
+#: ``gate="auto"``: the margin is ``log(T M) + GATE_AUTO_NATS``, so the dropped mass per locale is
+#: below ``exp(-GATE_AUTO_NATS)`` (8.5e-17) of its normaliser, under half the float64 epsilon.
+GATE_AUTO_NATS = 37.0
+#: Extra nats on the candidate radius so that rounding in the bound can never lose a kept triple.
+_GATE_SLACK = 1.0
+#: The gated E-step runs when it would keep at most this fraction of the ``N T M`` triples (measured:
+#: a candidate triple costs several times a dense one; see studies/results/scaling).
+GATE_MAX_FRACTION = 0.1
+#: Locales sampled to estimate the number of candidates before committing to the gated E-step.
+_GATE_SAMPLE = 64
 
 @dataclass
 class EStepResult:
@@ -26,7 +51,10 @@ class EStepResult:
     ----------
     weights
         ``w[n, t*M + m]``: posterior probability that locale ``n`` is visited by platform ``m`` at time
-        ``t + 1`` (rows sum to one). Reshape with :meth:`weights_ntm`.
+        ``t + 1`` (rows sum to one). A dense ``(N, T*M)`` array, or, from a gated E-step
+        (:attr:`gated`), a ``scipy.sparse.csr_matrix`` of the same shape and layout whose missing
+        entries are weights below ``exp(-gate)`` of their row's largest (zero). The methods below
+        handle both; :meth:`weights_ntm` gives a dense ``(N, T, M)`` array.
     W
         ``(T, M)``, ``sum_n w[n, t, m]``: the weight of the synthetic measurement.
     WZ
@@ -36,34 +64,107 @@ class EStepResult:
         objective.
     """
 
-    weights: np.ndarray
+    weights: np.ndarray | sp.csr_matrix
     W: np.ndarray
     WZ: np.ndarray
     log_normaliser: np.ndarray
     n_platforms: int
 
     @property
+    def gated(self) -> bool:
+        """Whether the weights are sparse (a gated E-step)."""
+        return sp.issparse(self.weights)
+
+    @property
+    def n_times(self) -> int:
+        """``T``."""
+        return int(self.weights.shape[1]) // self.n_platforms
+
+    @property
     def log_likelihood(self) -> float:
         """``sum_n log sum_{t,m} pi^tau[n,t] pi^k[n,m] zeta(z_n | x_t^m)``."""
         return float(np.sum(self.log_normaliser))
 
+    def _triples(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Stored entries of sparse weights as ``(row, column, value)``."""
+        w = self.weights
+        assert isinstance(w, sp.csr_matrix)
+        rows = np.repeat(np.arange(w.shape[0]), np.diff(w.indptr))
+        return rows, w.indices, w.data
+
     def weights_ntm(self) -> np.ndarray:
-        """Weights as ``(N, T, M)`` (a view)."""
-        n = self.weights.shape[0]
-        return self.weights.reshape(n, -1, self.n_platforms)
+        """Weights as ``(N, T, M)``: a view of dense weights, a new dense array for gated ones."""
+        w = self.weights
+        dense = w.toarray() if isinstance(w, sp.csr_matrix) else w
+        return np.asarray(dense).reshape(w.shape[0], -1, self.n_platforms)
+
+    def locale_weights(self, n: int) -> np.ndarray:
+        """Weights of locale ``n`` as ``(T, M)`` (a view for dense weights)."""
+        w = self.weights
+        if isinstance(w, sp.csr_matrix):
+            out = np.zeros(w.shape[1])
+            lo, hi = w.indptr[n], w.indptr[n + 1]
+            out[w.indices[lo:hi]] = w.data[lo:hi]
+            return out.reshape(-1, self.n_platforms)
+        return np.asarray(w[n]).reshape(-1, self.n_platforms)
 
     def time_prior(self) -> np.ndarray:
         """Updated ``pi^tau[n, t] = sum_m w[n, t, m]`` (eq. 11), ``(N, T)``."""
+        if self.gated:
+            N, T, M = self.weights.shape[0], self.n_times, self.n_platforms
+            rows, cols, vals = self._triples()
+            return np.bincount(rows * T + cols // M, weights=vals, minlength=N * T).reshape(N, T)
         return self.weights_ntm().sum(axis=2)
 
     def platform_prior(self) -> np.ndarray:
         """Updated ``pi^k[n, m] = sum_t w[n, t, m]`` (eq. 12), ``(N, M)``."""
+        if self.gated:
+            N, M = self.weights.shape[0], self.n_platforms
+            rows, cols, vals = self._triples()
+            return np.bincount(rows * M + cols % M, weights=vals, minlength=N * M).reshape(N, M)
         return self.weights_ntm().sum(axis=1)
+
+    def _argmax(self) -> np.ndarray:
+        """Column of each row's largest weight (the first one among ties, as ``np.argmax``)."""
+        w = self.weights
+        if isinstance(w, sp.csr_matrix):
+            starts = w.indptr[:-1]
+            best = np.maximum.reduceat(w.data, starts)
+            rows = np.repeat(np.arange(w.shape[0]), np.diff(w.indptr))
+            cand = np.where(w.data == best[rows], w.indices, w.shape[1])
+            return np.minimum.reduceat(cand, starts)
+        return np.argmax(w, axis=1)
 
     def map_assignment(self) -> tuple[np.ndarray, np.ndarray]:
         """Most probable ``(platform, time)`` per locale; times are in ``1..T``."""
-        idx = np.argmax(self.weights, axis=1)
+        idx = self._argmax()
         return idx % self.n_platforms, idx // self.n_platforms + 1
+
+    def max_weight(self) -> np.ndarray:
+        """``(N,)`` the weight of each locale's most probable ``(time, platform)``."""
+        w = self.weights
+        if isinstance(w, sp.csr_matrix):
+            return np.maximum.reduceat(w.data, w.indptr[:-1])
+        return np.max(w, axis=1)
+
+
+def gate_margin(gate: float | str | None, T: int, M: int) -> float | None:
+    """The gate's log-weight margin: ``None`` (no gate), a positive number, or ``"auto"``.
+
+    ``"auto"`` is ``log(T M) + GATE_AUTO_NATS``. Raises :class:`ConfigError` for anything else.
+    """
+    if gate is None:
+        return None
+    if isinstance(gate, str):
+        if gate.lower() == "auto":
+            return math.log(T * M) + GATE_AUTO_NATS
+        raise ConfigError(f"estep_gate: expected 'auto', a positive number or None, got {gate!r}.")
+    if isinstance(gate, (bool, np.bool_)) or not isinstance(gate, (int, float, np.integer, np.floating)):
+        raise ConfigError(f"estep_gate: expected 'auto', a positive number or None, got {gate!r}.")
+    value = float(gate)
+    if not math.isfinite(value) or value <= 0:
+        raise ConfigError(f"estep_gate: expected a finite positive margin (nats), got {gate!r}.")
+    return value
 
 
 def safe_log(p: np.ndarray) -> np.ndarray:
@@ -78,6 +179,7 @@ def estep(
     log_time_prior: np.ndarray | None,
     log_platform_prior: np.ndarray | None,
     r: float,
+    gate: float | str | None = None,
 ) -> EStepResult:
     """Compute the weights ``w[n, t, m]`` (eq. 9) for paths ``positions``.
 
@@ -93,10 +195,20 @@ def estep(
         ``-inf`` (a zero prior), but every locale needs some finite entry in each.
     r
         Variance of the Gaussian fitting penalty ``zeta = N(z; H x, r I)``.
+    gate
+        ``None`` (default): the dense computation. A margin ``G`` in nats (or ``"auto"``, see
+        :func:`gate_margin`): drop the triples whose log weight is more than ``G`` below their
+        locale's best (module docstring); the dense computation still runs when the gate would keep
+        more than :data:`GATE_MAX_FRACTION` of the triples or the paths are not finite.
     """
     z = locales
     M, T, _ = positions.shape
     N = z.shape[0]
+    margin = gate_margin(gate, T, M)
+    if margin is not None:
+        gated = _estep_gated(z, positions, log_time_prior, log_platform_prior, r, margin)
+        if gated is not None:
+            return gated
     p = np.ascontiguousarray(positions.transpose(1, 0, 2)).reshape(T * M, 2)
     scale = max(float(np.max(np.abs(p))), float(np.max(np.abs(z))))
     if scale < _SAFE_SCALE:
@@ -172,3 +284,185 @@ def _limit_rows(
     # log of an indicator: 0 where a winner, -inf elsewhere; the row then normalises over the winners.
     ll[rows] = np.where(winners, 0.0, -np.inf)
     mx[rows] = 0.0
+
+
+def _ball_lists(tree: cKDTree, points: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of ``tree``'s points within ``radii`` of each of ``points``: ``(counts, flat indices)``."""
+    lists = tree.query_ball_point(points, radii, return_sorted=False)
+    counts = np.fromiter(map(len, lists), dtype=np.intp, count=len(lists))
+    flat = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.intp, count=int(counts.sum()))
+    return counts, flat
+
+
+def _estep_gated(
+    z: np.ndarray,
+    positions: np.ndarray,
+    log_tau: np.ndarray | None,
+    log_k: np.ndarray | None,
+    r: float,
+    margin: float,
+) -> EStepResult | None:
+    """The gated E-step (module docstring), or ``None`` where the dense one should run instead.
+
+    Candidates come from whichever is smaller: the radius queries, or the support of the priors (all
+    triples with a non-zero prior, when the priors confine each locale to a few times and platforms,
+    as in :func:`~pmht_opt.plan_smoothed`).
+    """
+    M, T, _ = positions.shape
+    N = z.shape[0]
+    if not np.all(np.isfinite(positions)) or float(np.max(np.abs(positions))) > 1e50:
+        return None
+    budget = GATE_MAX_FRACTION * N * T * M
+    n_times = np.isfinite(log_tau).sum(axis=1) if log_tau is not None else np.full(N, T)
+    n_plats = np.isfinite(log_k).sum(axis=1) if log_k is not None else np.full(N, M)
+    support = float(np.sum(n_times * n_plats))
+    tree = _TreeCandidates(z, positions, log_tau, log_k, r, margin)
+    estimate = tree.estimate()
+    if min(support, estimate) > budget:
+        return None
+    if support <= estimate:
+        row, t, plat = _support_candidates(log_tau, log_k, N, T, M)
+    else:
+        found = tree.candidates(budget)
+        if found is None:
+            return None
+        row, t, plat = found
+    # Exact log weights of the candidates (direct differences: no cancellation).
+    inv2r = 0.5 / r
+    p = positions[plat, t]
+    dx = z[row, 0] - p[:, 0]
+    dy = z[row, 1] - p[:, 1]
+    a = dx * dx
+    a += dy * dy
+    a *= -inv2r
+    if log_tau is not None:
+        a += log_tau[row, t]
+    if log_k is not None:
+        a += log_k[row, plat]
+    best = np.full(N, -np.inf)
+    np.maximum.at(best, row, a)
+    if not np.all(np.isfinite(best)):
+        return None
+    keep = a >= best[row] - margin
+    if not np.all(keep):
+        row, t, plat, a = row[keep], t[keep], plat[keep], a[keep]
+    a -= best[row]
+    np.exp(a, out=a)
+    s = np.bincount(row, weights=a, minlength=N)
+    a /= s[row]
+    const = -(_LOG_2PI + math.log(r))
+    if log_tau is None:
+        const -= math.log(T)
+    if log_k is None:
+        const -= math.log(M)
+    lse = best + np.log(s) + const
+    col = t * M + plat
+    TM = T * M
+    W = np.bincount(col, weights=a, minlength=TM).reshape(T, M)
+    WZ = np.empty((T, M, 2))
+    WZ[:, :, 0] = np.bincount(col, weights=a * z[row, 0], minlength=TM).reshape(T, M)
+    WZ[:, :, 1] = np.bincount(col, weights=a * z[row, 1], minlength=TM).reshape(T, M)
+    # CSR in row order, columns sorted within each row.
+    order = np.argsort(row * TM + col)
+    indptr = np.zeros(N + 1, dtype=np.intp)
+    np.cumsum(np.bincount(row, minlength=N), out=indptr[1:])
+    weights = sp.csr_matrix((a[order], col[order], indptr), shape=(N, TM))
+    weights.has_sorted_indices = True
+    return EStepResult(weights=weights, W=W, WZ=WZ, log_normaliser=lse, n_platforms=M)
+
+
+def _support_candidates(
+    log_tau: np.ndarray | None, log_k: np.ndarray | None, N: int, T: int, M: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every triple whose priors are non-zero, as ``(row, t, platform)``."""
+    ft = np.isfinite(log_tau) if log_tau is not None else np.ones((N, T), dtype=bool)
+    fk = np.isfinite(log_k) if log_k is not None else np.ones((N, M), dtype=bool)
+    rows, ts, ms = [], [], []
+    for m in range(M):
+        rr, tt = np.nonzero(ft & fk[:, m, None])
+        rows.append(rr)
+        ts.append(tt)
+        ms.append(np.full(rr.size, m, dtype=np.intp))
+    return np.concatenate(rows), np.concatenate(ts), np.concatenate(ms)
+
+
+class _TreeCandidates:
+    """Candidate triples from a KD-tree per platform (module docstring)."""
+
+    def __init__(
+        self,
+        z: np.ndarray,
+        positions: np.ndarray,
+        log_tau: np.ndarray | None,
+        log_k: np.ndarray | None,
+        r: float,
+        margin: float,
+    ) -> None:
+        M = positions.shape[0]
+        N = z.shape[0]
+        self.z = z
+        self.trees = [cKDTree(positions[m], balanced_tree=False, compact_nodes=False) for m in range(M)]
+        inv2r = 0.5 / r
+        rows = np.arange(N)
+        if log_tau is not None:
+            t_peak = np.argmax(log_tau, axis=1)
+            lt_max = log_tau[rows, t_peak]
+        else:
+            lt_max = np.zeros(N)
+        lk = log_k if log_k is not None else np.zeros((N, M))
+        # A lower bound on each locale's best log weight (without the common constant): the exact log
+        # weight at each platform's nearest path point and at the time prior's peak.
+        lower = np.full(N, -np.inf)
+        with np.errstate(invalid="ignore"):
+            for m in range(M):
+                if log_k is not None and not np.any(np.isfinite(lk[:, m])):
+                    continue
+                d, tn = self.trees[m].query(z)
+                lt_at = log_tau[rows, tn] if log_tau is not None else 0.0
+                np.maximum(lower, lt_at + lk[:, m] - d * d * inv2r, out=lower)
+                if log_tau is not None:
+                    dp = z - positions[m, t_peak]
+                    np.maximum(lower, lt_max + lk[:, m] - np.einsum("ij,ij->i", dp, dp) * inv2r, out=lower)
+            # A triple can be kept only if -d^2/2r + log pi^tau + log pi^k >= lower - margin.
+            rho2 = 2.0 * r * (lt_max[:, None] + lk - lower[:, None] + (margin + _GATE_SLACK))
+        self.ok = bool(np.all(np.isfinite(lower)))
+        self.radius = np.sqrt(np.where(np.isfinite(rho2) & (rho2 >= 0), rho2, 0.0))
+        self.query = np.isfinite(rho2) & (rho2 >= 0)
+
+    def estimate(self) -> float:
+        """Expected number of candidates (from a sample of locales when there are many); inf if the
+        bound cannot place every locale."""
+        if not self.ok:
+            return math.inf
+        N = self.z.shape[0]
+        sample = np.arange(N)
+        if N > 2 * _GATE_SAMPLE:
+            sample = np.random.default_rng(N).choice(N, _GATE_SAMPLE, replace=False)
+        count = 0.0
+        for m, tree in enumerate(self.trees):
+            q = sample[self.query[sample, m]]
+            if q.size:
+                lengths = tree.query_ball_point(self.z[q], self.radius[q, m], return_length=True)
+                count += float(np.sum(lengths))
+        return count * N / sample.size
+
+    def candidates(self, budget: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """``(row, t, platform)`` of every triple within its radius, or ``None`` past ``budget``."""
+        rows_parts: list[np.ndarray] = []
+        t_parts: list[np.ndarray] = []
+        m_parts: list[np.ndarray] = []
+        total = 0
+        for m, tree in enumerate(self.trees):
+            q = np.flatnonzero(self.query[:, m])
+            if q.size == 0:
+                continue
+            counts, ts = _ball_lists(tree, self.z[q], self.radius[q, m])
+            total += ts.size
+            if total > budget:
+                return None
+            rows_parts.append(np.repeat(q, counts))
+            t_parts.append(ts)
+            m_parts.append(np.full(ts.size, m, dtype=np.intp))
+        if not rows_parts:
+            return None
+        return np.concatenate(rows_parts), np.concatenate(t_parts), np.concatenate(m_parts)

@@ -96,10 +96,10 @@ class TourVisits(VisitAll):
     def visits(self, ctx: ConstraintContext) -> tuple[np.ndarray, np.ndarray]:
         if ctx.estep is None:
             raise ConfigError("TourVisits needs the E-step result; it can only be used inside the planner.")
-        w = ctx.estep.weights_ntm()
+        es = ctx.estep
         times = np.empty(self.platform.shape[0], dtype=int)
         for n, (m, (lo, hi)) in enumerate(zip(self.platform, self.windows, strict=True)):
-            times[n] = lo + int(np.argmax(w[n, lo - 1 : hi, m]))
+            times[n] = lo + int(np.argmax(es.locale_weights(n)[lo - 1 : hi, m]))
         return self.platform, times
 
     def blocks(self, ctx: ConstraintContext) -> list[Block]:

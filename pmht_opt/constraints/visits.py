@@ -37,9 +37,8 @@ def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np
         raise ConfigError("VisitAll needs the E-step result; it can only be used inside the planner.")
     locales = ctx.scenario.locales
     starts = ctx.scenario.start_positions
-    w = es.weights_ntm()  # (N, T, M)
     platform, time = es.map_assignment()
-    best = w[np.arange(w.shape[0]), time - 1, platform]
+    best = es.max_weight()  # the weight at each locale's MAP (platform, time)
     steps = np.diff(ctx.states[:, :, POS], axis=1)
     speed = np.median(np.hypot(steps[..., 0], steps[..., 1]), axis=1)  # (M,) typical step length
     placed_t: dict[int, list[int]] = {}
@@ -69,8 +68,9 @@ def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np
         t = int(time[n])
         if clash(np.array([t]))[0]:
             # Most probable first; among equally probable (e.g. underflowed) times, the nearest.
-            cand = np.arange(1, w.shape[1] + 1)
-            order = cand[np.lexsort((np.abs(cand - t), -w[n, :, m]))]
+            wn = es.locale_weights(n)[:, m]  # (T,)
+            cand = np.arange(1, wn.shape[0] + 1)
+            order = cand[np.lexsort((np.abs(cand - t), -wn))]
             pick = np.flatnonzero(~clash(order.astype(float)))
             if pick.size == 0:  # no time the platform can reach comfortably: at least never two at once
                 pick = np.flatnonzero(~clash(order.astype(float), fast=False))
