@@ -188,8 +188,8 @@ def plan_smoothed(
         sequence of locale indices per platform, in visiting order.
     config
         Planner settings (solver, iterations, extra constraints such as a
-        :class:`~pmht_opt.constraints.SpeedLimit`). Both prior updates are switched off: the tour fixes
-        them.
+        :class:`~pmht_opt.constraints.SpeedLimit`). Both prior updates and annealing are switched
+        off: the tour fixes the assignment and the order, which is what they exist to find.
     visit_radius
         Each locale is passed within this distance, at a step inside its sub-batch.
     split
