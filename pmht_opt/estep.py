@@ -4,16 +4,20 @@ Everything is in the log domain: with ``r = 0.01`` and distances of a few units 
 ``exp(-d^2 / 2r)`` underflow. Arrays are kept two-dimensional, ``(N, T*M)`` with column ``t*M + m``,
 so that each step is one BLAS call or one ufunc pass.
 
-Gating. When ``r`` is small only the (locale, time, platform) triples near the locale matter: a weight
-more than ``G`` nats below its locale's largest weight is below ``exp(-G)`` of it. :func:`estep` with
-``gate=G`` keeps exactly the triples whose log weight is within ``G`` of their locale's best and sets
-the others to zero (as underflow already does far away), finding them without forming the ``N x T x M``
-array: a KD-tree per platform gives each locale's nearest path point, whose log weight (priors
-included) is a lower bound ``L_n`` on the best; a triple can only be kept if its distance satisfies
-``d^2 <= 2r (max_t log pi^tau + log pi^k - L_n + G)``, which a radius query returns. The weights are
-then a ``scipy.sparse`` CSR matrix with the dense layout. With ``G = log(T M) + 37`` (``"auto"``) the
-mass dropped from a locale is below ``exp(-37) < 1e-16`` of its normaliser: the result equals the
-dense one to rounding. Where the gate would admit too much (a wide ``r``, e.g. early in annealing) the
+Gating. When ``r`` is small only the (locale, time, platform) triples near the locale matter.
+:func:`estep` with ``gate=G`` drops a triple when its log weight is more than ``G`` nats below the best
+of its (locale, platform) pair, or more than 746 below its locale's best (where the dense computation's
+``exp`` underflows to exactly zero anyway), and finds the others without forming the ``N x T x M``
+array: a KD-tree per platform gives each pair's nearest path point, whose log weight (priors included)
+bounds the pair's best from below, and a triple can only be kept if its distance satisfies
+``d^2 <= 2r (max_t log pi^tau + log pi^k - bound + G)``, which a radius query returns. Gating per
+pair, not per locale, keeps every platform's share ``pi^k[n, m] = sum_t w[n, t, m]`` (eq. 12) exact
+down to the underflow, however small: the re-estimated platform prior can then revive a platform
+exactly as in the dense EM. The weights are a ``scipy.sparse`` CSR matrix with the dense layout. With
+``G = log(T M) + 37`` (``"auto"``) the mass dropped from a pair is below ``exp(-37) < 1e-16`` of it: W,
+WZ, the normalisers and ``pi^k`` equal the dense ones to rounding. The time prior's re-estimate
+``pi^tau[n, t] = sum_m w[n, t, m]`` is exact only where some triple of ``(n, t)`` is kept (zero
+elsewhere, not tiny). Where the gate would admit too much (a wide ``r``, e.g. early in annealing) the
 dense computation runs instead.
 """
 
@@ -21,7 +25,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
@@ -32,11 +36,13 @@ from pmht_opt.exceptions import ConfigError, PmhtOptError
 _LOG_2PI = float(np.log(2.0 * np.pi))
 #: Above this coordinate magnitude the expanded form |z|^2 - 2 z.p + |p|^2 could overflow.
 _SAFE_SCALE = 1e100
-#: ``gate="auto"``: the margin is ``log(T M) + GATE_AUTO_NATS``, so the dropped mass per locale is
-#: below ``exp(-GATE_AUTO_NATS)`` (8.5e-17) of its normaliser, under half the float64 epsilon.
+#: ``gate="auto"``: the margin is ``log(T M) + GATE_AUTO_NATS``, so the mass dropped from a (locale,
+#: platform) pair is below ``exp(-GATE_AUTO_NATS)`` (8.5e-17) of it, under half the float64 epsilon.
 GATE_AUTO_NATS = 37.0
 #: Extra nats on the candidate radius so that rounding in the bound can never lose a kept triple.
 _GATE_SLACK = 1.0
+#: Log weights this far below their locale's best give ``exp(.) = 0`` in float64 (dense E-step too).
+_UNDERFLOW = 746.0
 #: The gated E-step runs when it would keep at most this fraction of the ``N T M`` triples (measured:
 #: a candidate triple costs several times a dense one; see studies/results/scaling).
 GATE_MAX_FRACTION = 0.1
@@ -69,6 +75,8 @@ class EStepResult:
     WZ: np.ndarray
     log_normaliser: np.ndarray
     n_platforms: int
+    #: The E-step's inputs, kept by a gated E-step to recompute rows exactly.
+    inputs: EStepInputs | None = field(default=None, repr=False, compare=False)
 
     @property
     def gated(self) -> bool:
@@ -93,14 +101,20 @@ class EStepResult:
         return rows, w.indices, w.data
 
     def weights_ntm(self) -> np.ndarray:
-        """Weights as ``(N, T, M)``: a view of dense weights, a new dense array for gated ones."""
+        """Weights as ``(N, T, M)``: a view of dense weights; for gated ones a new array, recomputed
+        with every triple (the dropped ones too), as the dense E-step gives it."""
         w = self.weights
+        if self.inputs is not None:
+            return np.stack([self.locale_weights(n) for n in range(w.shape[0])])
         dense = w.toarray() if isinstance(w, sp.csr_matrix) else w
         return np.asarray(dense).reshape(w.shape[0], -1, self.n_platforms)
 
     def locale_weights(self, n: int) -> np.ndarray:
-        """Weights of locale ``n`` as ``(T, M)`` (a view for dense weights)."""
+        """Weights of locale ``n`` as ``(T, M)``: a view for dense weights; for gated ones the row
+        recomputed with every triple, so the ones the gate dropped keep their (tiny) values and order."""
         w = self.weights
+        if self.inputs is not None:
+            return self.inputs.row(n, float(self.log_normaliser[n]))
         if isinstance(w, sp.csr_matrix):
             out = np.zeros(w.shape[1])
             lo, hi = w.indptr[n], w.indptr[n + 1]
@@ -146,6 +160,33 @@ class EStepResult:
         if isinstance(w, sp.csr_matrix):
             return np.maximum.reduceat(w.data, w.indptr[:-1])
         return np.max(w, axis=1)
+
+
+@dataclass
+class EStepInputs:
+    """What a gated E-step was computed from: enough to recompute any row exactly."""
+
+    locales: np.ndarray
+    positions: np.ndarray
+    log_time_prior: np.ndarray | None
+    log_platform_prior: np.ndarray | None
+    r: float
+
+    def row(self, n: int, log_normaliser: float) -> np.ndarray:
+        """``w[n, t, m]`` as ``(T, M)`` given the row's log-normaliser."""
+        M, T, _ = self.positions.shape
+        d = self.positions - self.locales[n]
+        a = -0.5 / self.r * np.einsum("mtk,mtk->tm", d, d)
+        a -= _LOG_2PI + math.log(self.r) + log_normaliser
+        if self.log_time_prior is not None:
+            a += self.log_time_prior[n][:, None]
+        else:
+            a -= math.log(T)
+        if self.log_platform_prior is not None:
+            a += self.log_platform_prior[n][None, :]
+        else:
+            a -= math.log(M)
+        return np.exp(a, out=a)
 
 
 def gate_margin(gate: float | str | None, T: int, M: int) -> float | None:
@@ -197,9 +238,10 @@ def estep(
         Variance of the Gaussian fitting penalty ``zeta = N(z; H x, r I)``.
     gate
         ``None`` (default): the dense computation. A margin ``G`` in nats (or ``"auto"``, see
-        :func:`gate_margin`): drop the triples whose log weight is more than ``G`` below their
-        locale's best (module docstring); the dense computation still runs when the gate would keep
-        more than :data:`GATE_MAX_FRACTION` of the triples or the paths are not finite.
+        :func:`gate_margin`): drop the triples whose log weight is more than ``G`` below the best of
+        their (locale, platform) pair (module docstring); the dense computation still runs when the
+        gate would keep more than :data:`GATE_MAX_FRACTION` of the triples or the paths are not
+        finite.
     """
     z = locales
     M, T, _ = positions.shape
@@ -339,11 +381,13 @@ def _estep_gated(
         a += log_tau[row, t]
     if log_k is not None:
         a += log_k[row, plat]
-    best = np.full(N, -np.inf)
-    np.maximum.at(best, row, a)
+    pair = row * M + plat
+    pair_best = np.full(N * M, -np.inf)
+    np.maximum.at(pair_best, pair, a)
+    best = pair_best.reshape(N, M).max(axis=1)
     if not np.all(np.isfinite(best)):
         return None
-    keep = a >= best[row] - margin
+    keep = (a >= pair_best[pair] - margin) & (a >= best[row] - _UNDERFLOW)
     if not np.all(keep):
         row, t, plat, a = row[keep], t[keep], plat[keep], a[keep]
     a -= best[row]
@@ -368,7 +412,8 @@ def _estep_gated(
     np.cumsum(np.bincount(row, minlength=N), out=indptr[1:])
     weights = sp.csr_matrix((a[order], col[order], indptr), shape=(N, TM))
     weights.has_sorted_indices = True
-    return EStepResult(weights=weights, W=W, WZ=WZ, log_normaliser=lse, n_platforms=M)
+    inputs = EStepInputs(z, positions, log_tau, log_k, r)
+    return EStepResult(weights=weights, W=W, WZ=WZ, log_normaliser=lse, n_platforms=M, inputs=inputs)
 
 
 def _support_candidates(
@@ -410,24 +455,32 @@ class _TreeCandidates:
         else:
             lt_max = np.zeros(N)
         lk = log_k if log_k is not None else np.zeros((N, M))
-        # A lower bound on each locale's best log weight (without the common constant): the exact log
-        # weight at each platform's nearest path point and at the time prior's peak.
-        lower = np.full(N, -np.inf)
+        # Lower bounds on each (locale, platform) pair's best log weight (without the common constant):
+        # the exact log weight at the platform's nearest path point and at the time prior's peak.
+        lower_nm = np.full((N, M), -np.inf)
+        dmin2 = np.zeros((N, M))
         with np.errstate(invalid="ignore"):
             for m in range(M):
                 if log_k is not None and not np.any(np.isfinite(lk[:, m])):
                     continue
                 d, tn = self.trees[m].query(z)
+                dmin2[:, m] = d * d
                 lt_at = log_tau[rows, tn] if log_tau is not None else 0.0
-                np.maximum(lower, lt_at + lk[:, m] - d * d * inv2r, out=lower)
+                lower_nm[:, m] = lt_at + lk[:, m] - dmin2[:, m] * inv2r
                 if log_tau is not None:
                     dp = z - positions[m, t_peak]
-                    np.maximum(lower, lt_max + lk[:, m] - np.einsum("ij,ij->i", dp, dp) * inv2r, out=lower)
-            # A triple can be kept only if -d^2/2r + log pi^tau + log pi^k >= lower - margin.
-            rho2 = 2.0 * r * (lt_max[:, None] + lk - lower[:, None] + (margin + _GATE_SLACK))
+                    peak = lt_max + lk[:, m] - np.einsum("ij,ij->i", dp, dp) * inv2r
+                    np.maximum(lower_nm[:, m], peak, out=lower_nm[:, m])
+            lower = lower_nm.max(axis=1)
+            # Triples below lower - _UNDERFLOW are dropped whatever their pair's best.
+            floor = lower[:, None] - (_UNDERFLOW + _GATE_SLACK)
+            upper = lt_max[:, None] + lk  # bound on log pi^tau + log pi^k of the pair
+            reach = upper - dmin2 * inv2r >= floor
+            # A triple can be kept only if -d^2/2r + log pi^tau + log pi^k >= max(pair bound, floor) - G.
+            rho2 = 2.0 * r * (upper - np.maximum(lower_nm, floor) + (margin + _GATE_SLACK))
         self.ok = bool(np.all(np.isfinite(lower)))
-        self.radius = np.sqrt(np.where(np.isfinite(rho2) & (rho2 >= 0), rho2, 0.0))
-        self.query = np.isfinite(rho2) & (rho2 >= 0)
+        self.query = reach & np.isfinite(rho2) & (rho2 >= 0)
+        self.radius = np.sqrt(np.where(self.query, rho2, 0.0))
 
     def estimate(self) -> float:
         """Expected number of candidates (from a sample of locales when there are many); inf if the
