@@ -474,7 +474,7 @@ def markdown(summary: Mapping[str, Any]) -> str:
         "",
         "## Sweeps (slopes of log time / log memory above the baseline against log size)",
         "",
-        *_header(["sweep", "E-step", "N x T x M", "wall (s)", "peak RSS (MiB)", "time slope", "memory slope"]),
+        *_header(["sweep", "E-step", "N x T x M", "wall (s)", "peak RSS (MiB)", "time slope", "mem. slope"]),
     ]
     for axis, entry in summary["sweeps"].items():
         sizes = " ".join("x".join(str(v) for v in p) for p in entry["points"])
