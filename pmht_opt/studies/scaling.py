@@ -560,7 +560,8 @@ def plot(summary: Mapping[str, Any], path: Path) -> Path:
                 ok = np.isfinite(ys) & (ys > 0)  # log axes: a run within the baseline has no point
                 ax.plot(np.asarray(xs)[ok], ys[ok], style, label=f"{name}: slope {_fmt(slope, 2)}")
                 ax.set_xscale("log")
-                ax.set_yscale("log")
+                if np.any(ok):
+                    ax.set_yscale("log")
         axes[0, col].set_title(f"{axis} sweep ({fixed})")
         axes[0, col].set_ylabel("plan wall time (s)")
         axes[1, col].set_ylabel("peak RSS above baseline (MiB)")

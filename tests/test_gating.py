@@ -1,0 +1,175 @@
+"""The gated E-step equals the dense one to rounding; whole plans agree; bad gate values are refused."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import pmht_opt as po
+import pmht_opt.planner as planner_mod
+from pmht_opt.estep import EStepResult, estep, gate_margin, safe_log
+
+TOL = 1e-12
+#: The dense E-step expands |z - p|^2 = |z|^2 - 2 z.p + |p|^2, exact to about eps |z|^2 ~ 1e-14 in the
+#: box, i.e. 1e-14 / (2 r) in the log weights: the comparisons allow that much.
+def _tol(r: float) -> float:
+    return max(TOL, 1e-14 / r)
+
+
+
+def _rel(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-300))
+
+
+def _case(seed: int, prior: str, r: float) -> tuple[np.ndarray, np.ndarray, Any, Any, float]:
+    """Random locales and smooth random-walk paths in the 10 x 10 box, with priors of kind ``prior``."""
+    rng = np.random.default_rng(seed)
+    N, M, T = int(rng.integers(60, 160)), int(rng.integers(2, 5)), int(rng.integers(150, 300))
+    z = rng.uniform(0, 10, (N, 2))
+    steps = rng.normal(0, 0.08, (M, T, 2))
+    pos = np.cumsum(steps, axis=1) + rng.uniform(2, 8, (M, 1, 2))
+    lt = lk = None
+    if prior == "dirichlet":  # non-uniform, with exact zeros in the platform prior
+        lt = np.log(rng.dirichlet(np.full(T, 0.5), size=N))
+        k = rng.dirichlet(np.ones(M), size=N)
+        k[k < 0.15] = 0.0
+        k /= k.sum(axis=1, keepdims=True)
+        lk = safe_log(k)
+    elif prior == "windows":  # each locale confined to a window of times and one platform (plan_smoothed)
+        tau = np.zeros((N, T))
+        for n in range(N):
+            lo = int(rng.integers(0, T - 20))
+            tau[n, lo : lo + int(rng.integers(1, 20))] = 1.0
+        lt = safe_log(tau / tau.sum(axis=1, keepdims=True))
+        k = np.zeros((N, M))
+        k[np.arange(N), rng.integers(0, M, N)] = 1.0
+        lk = safe_log(k)
+    return z, pos, lt, lk, r
+
+
+def _assert_same(g: EStepResult, d: EStepResult, r: float) -> None:
+    tol = _tol(r)
+    assert _rel(g.W, d.W) < tol
+    assert _rel(g.WZ, d.WZ) < tol
+    np.testing.assert_allclose(g.log_normaliser, d.log_normaliser, rtol=tol, atol=tol)
+    assert g.log_likelihood == pytest.approx(d.log_likelihood, rel=tol)
+    for a, b in zip(g.map_assignment(), d.map_assignment(), strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_allclose(g.max_weight(), d.max_weight(), atol=tol)
+    np.testing.assert_allclose(g.time_prior(), d.time_prior(), atol=tol)
+    # The platform prior is exact down to the underflow, tiny shares included (per-pair gate).
+    kg, kd = g.platform_prior(), d.platform_prior()
+    np.testing.assert_allclose(kg, kd, atol=tol)
+    tiny = kd > 1e-250
+    assert np.all(kg[tiny] > 0)
+    np.testing.assert_allclose(np.log(kg[tiny]), np.log(kd[tiny]), atol=1e-9)
+    # Rows recomputed exactly, and the stored sparse weights.
+    np.testing.assert_allclose(g.weights_ntm(), d.weights_ntm(), atol=tol)
+    dense_w = np.asarray(d.weights)
+    if isinstance(g.weights, sp.csr_matrix):
+        np.testing.assert_allclose(g.weights.toarray(), dense_w, atol=tol)
+    n = int(np.argmax(d.log_normaliser))
+    np.testing.assert_allclose(g.locale_weights(n), d.locale_weights(n), atol=tol)
+
+
+@pytest.mark.parametrize("prior", ["uniform", "dirichlet", "windows"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_gated_estep_equals_dense_small_r(seed: int, prior: str) -> None:
+    z, pos, lt, lk, r = _case(seed, prior, 0.01 if seed == 0 else 0.002)
+    d = estep(z, pos, lt, lk, r)
+    g = estep(z, pos, lt, lk, r, gate="auto")
+    assert g.gated and not d.gated
+    assert isinstance(g.weights, sp.csr_matrix) and g.weights.shape == d.weights.shape
+    assert g.weights.nnz < 0.1 * d.weights.size
+    _assert_same(g, d, r)
+
+
+@pytest.mark.parametrize("prior", ["uniform", "dirichlet"])
+def test_gate_falls_back_to_dense_for_wide_r(prior: str) -> None:
+    z, pos, lt, lk, _ = _case(3, prior, 1.0)
+    d = estep(z, pos, lt, lk, 1.0)
+    g = estep(z, pos, lt, lk, 1.0, gate="auto")
+    assert not g.gated  # the gate would keep most triples: dense, bit for bit
+    np.testing.assert_array_equal(np.asarray(g.weights), np.asarray(d.weights))
+
+
+def test_numeric_gate_and_far_paths() -> None:
+    z, pos, lt, lk, r = _case(4, "uniform", 0.01)
+    d = estep(z, pos, lt, lk, r)
+    g = estep(z, pos, lt, lk, r, gate=60.0)
+    assert g.gated
+    _assert_same(g, d, r)
+    far = pos.copy()
+    far[0, 5] = 1e200  # a diverged path: the dense code handles the overflow
+    assert not estep(z, far, None, None, r, gate="auto").gated
+
+
+def test_gate_margin_values() -> None:
+    assert gate_margin(None, 10, 2) is None
+    assert gate_margin("auto", 1000, 10) == pytest.approx(np.log(10000) + 37)
+    assert gate_margin(25, 10, 2) == 25.0
+
+
+@pytest.mark.parametrize("bad", ["fast", "", -1.0, 0, float("nan"), float("inf"), True, [40]])
+def test_bad_gate_values_raise_config_error(bad: Any) -> None:
+    with pytest.raises(po.ConfigError, match="estep_gate"):
+        po.PMHTConfig(estep_gate=bad)
+    with pytest.raises(po.ConfigError, match="estep_gate"):
+        estep(np.zeros((1, 2)), np.zeros((1, 3, 2)), None, None, 0.01, gate=bad)
+
+
+def test_good_gate_values_accepted() -> None:
+    assert po.PMHTConfig().estep_gate == "auto"
+    assert po.PMHTConfig(estep_gate="AUTO").estep_gate == "auto"
+    assert po.PMHTConfig(estep_gate=None).estep_gate is None
+    assert po.PMHTConfig(estep_gate=np.float64(30)).estep_gate == 30.0
+
+
+def _count_gated(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
+    seen: list[bool] = []
+    real = planner_mod.estep
+
+    def spy(*args: Any, **kwargs: Any) -> EStepResult:
+        out = real(*args, **kwargs)
+        seen.append(out.gated)
+        return out
+
+    monkeypatch.setattr(planner_mod, "estep", spy)
+    return seen
+
+
+@pytest.mark.parametrize("anneal", [None, po.Anneal(1.0, 8)])
+def test_whole_plan_gated_equals_dense(monkeypatch: pytest.MonkeyPatch, anneal: Any) -> None:
+    sc = po.paper_scenario("A", seed=1, horizon=250)
+    base = {"solver": "kalman", "max_iter": 25, "anneal": anneal}
+    dense = po.plan_pmht(sc, po.PMHTConfig(estep_gate=None, **base))
+    seen = _count_gated(monkeypatch)
+    gated = po.plan_pmht(sc, po.PMHTConfig(**base))
+    assert sum(seen) >= 10  # most E-steps were gated
+    np.testing.assert_allclose(gated.positions, dense.positions, atol=1e-9)
+    np.testing.assert_array_equal(gated.assignment, dense.assignment)
+    np.testing.assert_array_equal(gated.visit_time, dense.visit_time)
+    np.testing.assert_allclose(gated.platform_prior, dense.platform_prior, atol=1e-12)
+    np.testing.assert_allclose(gated.history.objective, dense.history.objective, rtol=1e-12)
+
+
+def test_visit_all_plan_gated_equals_dense(monkeypatch: pytest.MonkeyPatch) -> None:
+    sc = po.paper_scenario("A", seed=1, horizon=200)
+    visits = [po.VisitAll(0.1, warmup=2)]
+    base = {"solver": "clarabel", "max_iter": 8, "anneal": po.Anneal(1.0, 3), "constraints": visits}
+    dense = po.plan_pmht(sc, po.PMHTConfig(estep_gate=None, **base))
+    seen = _count_gated(monkeypatch)
+    gated = po.plan_pmht(sc, po.PMHTConfig(**base))
+    assert any(seen)
+    np.testing.assert_allclose(gated.positions, dense.positions, atol=1e-5)
+    np.testing.assert_array_equal(gated.visit_time, dense.visit_time)
+
+
+def test_auto_gate_is_dense_with_time_prior_update(monkeypatch: pytest.MonkeyPatch) -> None:
+    sc = po.paper_scenario("A", seed=1, horizon=150)
+    seen = _count_gated(monkeypatch)
+    po.plan_pmht(sc, po.PMHTConfig(solver="kalman", max_iter=6, anneal=None, update_time_prior=True))
+    assert seen and not any(seen)
