@@ -253,40 +253,51 @@ def estep(
             return gated
     p = np.ascontiguousarray(positions.transpose(1, 0, 2)).reshape(T * M, 2)
     scale = max(float(np.max(np.abs(p))), float(np.max(np.abs(z))))
+    const = _LOG_2PI + math.log(r)
+    if log_time_prior is None:
+        const += math.log(T)
+    if log_platform_prior is None:
+        const += math.log(M)
+    distance2 = None
     if scale < _SAFE_SCALE:
-        ll = z @ p.T
-        ll *= -2.0
+        # |z - p|^2 = |z|^2 - 2 z.p + |p|^2 (the factor -2 is exact inside the product).
+        ll = (-2.0 * z) @ p.T
         ll += np.einsum("ij,ij->i", z, z)[:, None]
         ll += np.einsum("ij,ij->i", p, p)[None, :]
-        np.maximum(ll, 0.0, out=ll)
+        ll *= -0.5 / r
+        ll -= const
     else:
         # Far-away paths (a diverged plan): hypot avoids the overflow of the squared coordinates.
         ll = np.hypot(z[:, None, 0] - p[None, :, 0], z[:, None, 1] - p[None, :, 1])
         with np.errstate(over="ignore"):
             ll *= ll
-    distance2 = None if np.all(np.isfinite(ll)) else ll.copy()
-    ll *= -0.5 / r
-    ll -= _LOG_2PI + np.log(r)
+        if not np.all(np.isfinite(ll)):
+            distance2 = ll.copy()
+        ll *= -0.5 / r
+        ll -= const
     view = ll.reshape(N, T, M)
     if log_time_prior is not None:
         view += log_time_prior[:, :, None]
-    else:
-        ll -= np.log(T)
     if log_platform_prior is not None:
         view += log_platform_prior[:, None, :]
-    else:
-        ll -= np.log(M)
     mx = ll.max(axis=1)
     bad = ~np.isfinite(mx)
     if np.any(bad):
         _limit_rows(ll, mx, bad, distance2, log_time_prior, log_platform_prior, T, M)
     ll -= mx[:, None]
-    np.exp(ll, out=ll)
-    s = ll.sum(axis=1)
-    ll /= s[:, None]
+    if np.mean(ll[:: max(N // 16, 1), :: max(T * M // 997, 1)] < -_UNDERFLOW) > 0.25:
+        # Mostly below -746, where exp is exactly 0 but takes numpy's slow path: skip those entries.
+        w = np.zeros_like(ll)
+        np.exp(ll, out=w, where=ll >= -_UNDERFLOW)
+        del ll, view
+    else:
+        w = np.exp(ll, out=ll)
+    s = w.sum(axis=1)
+    w *= (1.0 / s)[:, None]
     lse = mx + np.log(s)
     if np.any(bad):
         lse[bad] = -np.inf  # the likelihood of these rows underflows to exactly zero
+    ll = w
     W = ll.sum(axis=0).reshape(T, M)
     WZ = (z.T @ ll).T.reshape(T, M, 2)
     return EStepResult(weights=ll, W=W, WZ=WZ, log_normaliser=lse, n_platforms=M)
@@ -362,32 +373,37 @@ def _estep_gated(
     estimate = tree.estimate()
     if min(support, estimate) > budget:
         return None
+    found: Candidates | None
     if support <= estimate:
-        row, t, plat = _support_candidates(log_tau, log_k, N, T, M)
+        found = _support_candidates(log_tau, log_k, N, T, M)
     else:
         found = tree.candidates(budget)
-        if found is None:
-            return None
-        row, t, plat = found
+    if found is None:
+        return None
+    row, t, plat, seg_count, seg_row = found
     # Exact log weights of the candidates (direct differences: no cancellation).
     inv2r = 0.5 / r
-    p = positions[plat, t]
-    dx = z[row, 0] - p[:, 0]
-    dy = z[row, 1] - p[:, 1]
-    a = dx * dx
-    a += dy * dy
+    flat = plat * T + t
+    a = z[:, 0][row] - positions[:, :, 0].ravel()[flat]
+    a *= a
+    dy = z[:, 1][row] - positions[:, :, 1].ravel()[flat]
+    dy *= dy
+    a += dy
     a *= -inv2r
     if log_tau is not None:
         a += log_tau[row, t]
     if log_k is not None:
         a += log_k[row, plat]
-    pair = row * M + plat
-    pair_best = np.full(N * M, -np.inf)
-    np.maximum.at(pair_best, pair, a)
-    best = pair_best.reshape(N, M).max(axis=1)
+    # Candidates come in segments, one per (locale, platform) pair.
+    seg_start = np.zeros(seg_count.size, dtype=np.intp)
+    np.cumsum(seg_count[:-1], out=seg_start[1:])
+    pair_best = np.maximum.reduceat(a, seg_start)
+    best = np.full(N, -np.inf)
+    np.maximum.at(best, seg_row, pair_best)
     if not np.all(np.isfinite(best)):
         return None
-    keep = (a >= pair_best[pair] - margin) & (a >= best[row] - _UNDERFLOW)
+    threshold = np.maximum(pair_best - margin, best[seg_row] - _UNDERFLOW)
+    keep = a >= np.repeat(threshold, seg_count)
     if not np.all(keep):
         row, t, plat, a = row[keep], t[keep], plat[keep], a[keep]
     a -= best[row]
@@ -406,29 +422,42 @@ def _estep_gated(
     WZ = np.empty((T, M, 2))
     WZ[:, :, 0] = np.bincount(col, weights=a * z[row, 0], minlength=TM).reshape(T, M)
     WZ[:, :, 1] = np.bincount(col, weights=a * z[row, 1], minlength=TM).reshape(T, M)
-    # CSR in row order, columns sorted within each row.
-    order = np.argsort(row * TM + col)
+    # CSR: the candidates are platform-major, so a stable sort by row is a merge of M sorted runs.
+    order = np.argsort(row, kind="stable")
     indptr = np.zeros(N + 1, dtype=np.intp)
     np.cumsum(np.bincount(row, minlength=N), out=indptr[1:])
     weights = sp.csr_matrix((a[order], col[order], indptr), shape=(N, TM))
-    weights.has_sorted_indices = True
     inputs = EStepInputs(z, positions, log_tau, log_k, r)
     return EStepResult(weights=weights, W=W, WZ=WZ, log_normaliser=lse, n_platforms=M, inputs=inputs)
 
 
+Candidates = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
 def _support_candidates(
     log_tau: np.ndarray | None, log_k: np.ndarray | None, N: int, T: int, M: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every triple whose priors are non-zero, as ``(row, t, platform)``."""
+) -> Candidates:
+    """Every triple whose priors are non-zero: ``(row, t, platform)`` grouped in segments, one per
+    (locale, platform) pair, platform-major, and the segments' ``(length, row)``."""
     ft = np.isfinite(log_tau) if log_tau is not None else np.ones((N, T), dtype=bool)
     fk = np.isfinite(log_k) if log_k is not None else np.ones((N, M), dtype=bool)
-    rows, ts, ms = [], [], []
+    rows, ts, ms, counts, seg_rows = [], [], [], [], []
     for m in range(M):
-        rr, tt = np.nonzero(ft & fk[:, m, None])
+        mask = ft & fk[:, m, None]
+        rr, tt = np.nonzero(mask)
         rows.append(rr)
         ts.append(tt)
         ms.append(np.full(rr.size, m, dtype=np.intp))
-    return np.concatenate(rows), np.concatenate(ts), np.concatenate(ms)
+        c = mask.sum(axis=1)
+        counts.append(c[c > 0])
+        seg_rows.append(np.flatnonzero(c))
+    return (
+        np.concatenate(rows),
+        np.concatenate(ts),
+        np.concatenate(ms),
+        np.concatenate(counts),
+        np.concatenate(seg_rows),
+    )
 
 
 class _TreeCandidates:
@@ -499,11 +528,14 @@ class _TreeCandidates:
                 count += float(np.sum(lengths))
         return count * N / sample.size
 
-    def candidates(self, budget: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """``(row, t, platform)`` of every triple within its radius, or ``None`` past ``budget``."""
+    def candidates(self, budget: float) -> Candidates | None:
+        """Every triple within its pair's radius, as :func:`_support_candidates` returns them, or
+        ``None`` past ``budget``."""
         rows_parts: list[np.ndarray] = []
         t_parts: list[np.ndarray] = []
         m_parts: list[np.ndarray] = []
+        count_parts: list[np.ndarray] = []
+        seg_parts: list[np.ndarray] = []
         total = 0
         for m, tree in enumerate(self.trees):
             q = np.flatnonzero(self.query[:, m])
@@ -516,6 +548,14 @@ class _TreeCandidates:
             rows_parts.append(np.repeat(q, counts))
             t_parts.append(ts)
             m_parts.append(np.full(ts.size, m, dtype=np.intp))
+            count_parts.append(counts[counts > 0])
+            seg_parts.append(q[counts > 0])
         if not rows_parts:
             return None
-        return np.concatenate(rows_parts), np.concatenate(t_parts), np.concatenate(m_parts)
+        return (
+            np.concatenate(rows_parts),
+            np.concatenate(t_parts),
+            np.concatenate(m_parts),
+            np.concatenate(count_parts),
+            np.concatenate(seg_parts),
+        )
