@@ -114,7 +114,7 @@ class EStepResult:
         recomputed with every triple, so the ones the gate dropped keep their (tiny) values and order."""
         w = self.weights
         if self.inputs is not None:
-            return self.inputs.row(n, float(self.log_normaliser[n]))
+            return self.inputs.row(n)
         if isinstance(w, sp.csr_matrix):
             out = np.zeros(w.shape[1])
             lo, hi = w.indptr[n], w.indptr[n + 1]
@@ -162,6 +162,25 @@ class EStepResult:
         return np.max(w, axis=1)
 
 
+def _log_const(r: float, T: int, M: int, uniform_time: bool, uniform_platform: bool) -> float:
+    """``log(2 pi r)`` plus the log of the uniform priors' sizes: subtracted from every log weight."""
+    const = _LOG_2PI + math.log(r)
+    if uniform_time:
+        const += math.log(T)
+    if uniform_platform:
+        const += math.log(M)
+    return const
+
+
+def _log_weights_from_d2(d2: np.ndarray, r: float, const: float) -> np.ndarray:
+    """``-d2 / 2r - const`` in place. The dense E-step, the gated one and the row recompute all use
+    this and :func:`_squared_distance`'s arithmetic, so they give bit-identical log weights (ties
+    among times or platforms are then broken alike)."""
+    d2 *= -0.5 / r
+    d2 -= const
+    return d2
+
+
 @dataclass
 class EStepInputs:
     """What a gated E-step was computed from: enough to recompute any row exactly."""
@@ -172,21 +191,35 @@ class EStepInputs:
     log_platform_prior: np.ndarray | None
     r: float
 
-    def row(self, n: int, log_normaliser: float) -> np.ndarray:
-        """``w[n, t, m]`` as ``(T, M)`` given the row's log-normaliser."""
+    def row(self, n: int) -> np.ndarray:
+        """``w[n, t, m]`` as ``(T, M)``, computed as the dense E-step computes it (bit for bit)."""
         M, T, _ = self.positions.shape
-        d = self.positions - self.locales[n]
-        a = -0.5 / self.r * np.einsum("mtk,mtk->tm", d, d)
-        a -= _LOG_2PI + math.log(self.r) + log_normaliser
-        if self.log_time_prior is not None:
-            a += self.log_time_prior[n][:, None]
-        else:
-            a -= math.log(T)
-        if self.log_platform_prior is not None:
-            a += self.log_platform_prior[n][None, :]
-        else:
-            a -= math.log(M)
-        return np.exp(a, out=a)
+        lt, lk = self.log_time_prior, self.log_platform_prior
+        const = _log_const(self.r, T, M, lt is None, lk is None)
+        p = self.positions.transpose(1, 0, 2).reshape(T * M, 2)
+        ll = _log_weights_from_d2(_squared_distance(self.locales[n : n + 1], p), self.r, const)
+        view = ll.reshape(1, T, M)
+        if lt is not None:
+            view += lt[n : n + 1, :, None]
+        if lk is not None:
+            view += lk[n : n + 1, None, :]
+        ll -= ll.max(axis=1)[:, None]
+        np.exp(ll, out=ll)
+        ll *= (1.0 / ll.sum(axis=1))[:, None]
+        return ll.reshape(T, M)
+
+
+def _squared_distance(z: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """``(len(z), len(p))`` squared distances ``(zx - px)^2 + (zy - py)^2``, elementwise (exact to
+    rounding, no cancellation); the y part in blocks of rows to keep the temporary small."""
+    out = np.subtract.outer(z[:, 0], p[:, 0])
+    out *= out
+    step = max(1, (1 << 17) // max(p.shape[0], 1))
+    for i in range(0, z.shape[0], step):
+        dy = np.subtract.outer(z[i : i + step, 1], p[:, 1])
+        dy *= dy
+        out[i : i + step] += dy
+    return out
 
 
 def gate_margin(gate: float | str | None, T: int, M: int) -> float | None:
@@ -253,19 +286,10 @@ def estep(
             return gated
     p = np.ascontiguousarray(positions.transpose(1, 0, 2)).reshape(T * M, 2)
     scale = max(float(np.max(np.abs(p))), float(np.max(np.abs(z))))
-    const = _LOG_2PI + math.log(r)
-    if log_time_prior is None:
-        const += math.log(T)
-    if log_platform_prior is None:
-        const += math.log(M)
+    const = _log_const(r, T, M, log_time_prior is None, log_platform_prior is None)
     distance2 = None
     if scale < _SAFE_SCALE:
-        # |z - p|^2 = |z|^2 - 2 z.p + |p|^2 (the factor -2 is exact inside the product).
-        ll = (-2.0 * z) @ p.T
-        ll += np.einsum("ij,ij->i", z, z)[:, None]
-        ll += np.einsum("ij,ij->i", p, p)[None, :]
-        ll *= -0.5 / r
-        ll -= const
+        ll = _log_weights_from_d2(_squared_distance(z, p), r, const)
     else:
         # Far-away paths (a diverged plan): hypot avoids the overflow of the squared coordinates.
         ll = np.hypot(z[:, None, 0] - p[None, :, 0], z[:, None, 1] - p[None, :, 1])
@@ -273,8 +297,7 @@ def estep(
             ll *= ll
         if not np.all(np.isfinite(ll)):
             distance2 = ll.copy()
-        ll *= -0.5 / r
-        ll -= const
+        ll = _log_weights_from_d2(ll, r, const)
     view = ll.reshape(N, T, M)
     if log_time_prior is not None:
         view += log_time_prior[:, :, None]
@@ -381,15 +404,16 @@ def _estep_gated(
     if found is None:
         return None
     row, t, plat, seg_count, seg_row = found
-    # Exact log weights of the candidates (direct differences: no cancellation).
-    inv2r = 0.5 / r
+    # The candidates' log weights, with the dense E-step's arithmetic (bit for bit the same).
+    const = _log_const(r, T, M, log_tau is None, log_k is None)
     flat = plat * T + t
     a = z[:, 0][row] - positions[:, :, 0].ravel()[flat]
     a *= a
     dy = z[:, 1][row] - positions[:, :, 1].ravel()[flat]
     dy *= dy
     a += dy
-    a *= -inv2r
+    del dy
+    a = _log_weights_from_d2(a, r, const)
     if log_tau is not None:
         a += log_tau[row, t]
     if log_k is not None:
@@ -409,13 +433,8 @@ def _estep_gated(
     a -= best[row]
     np.exp(a, out=a)
     s = np.bincount(row, weights=a, minlength=N)
-    a /= s[row]
-    const = -(_LOG_2PI + math.log(r))
-    if log_tau is None:
-        const -= math.log(T)
-    if log_k is None:
-        const -= math.log(M)
-    lse = best + np.log(s) + const
+    a *= (1.0 / s)[row]
+    lse = best + np.log(s)
     col = t * M + plat
     TM = T * M
     W = np.bincount(col, weights=a, minlength=TM).reshape(T, M)
