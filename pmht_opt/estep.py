@@ -2,7 +2,8 @@
 
 Everything is in the log domain: with ``r = 0.01`` and distances of a few units the likelihoods
 ``exp(-d^2 / 2r)`` underflow. Arrays are kept two-dimensional, ``(N, T*M)`` with column ``t*M + m``,
-so that each step is one BLAS call or one ufunc pass.
+so that each step is one ufunc pass. Squared distances are formed elementwise (no ``|z|^2 - 2 z.p +
+|p|^2`` cancellation), the same way in every path below, so all give bit-identical log weights.
 
 Gating. When ``r`` is small only the (locale, time, platform) triples near the locale matter.
 :func:`estep` with ``gate=G`` drops a triple when its log weight is more than ``G`` nats below the best
@@ -18,7 +19,10 @@ exactly as in the dense EM. The weights are a ``scipy.sparse`` CSR matrix with t
 WZ, the normalisers and ``pi^k`` equal the dense ones to rounding. The time prior's re-estimate
 ``pi^tau[n, t] = sum_m w[n, t, m]`` is exact only where some triple of ``(n, t)`` is kept (zero
 elsewhere, not tiny). Where the gate would admit too much (a wide ``r``, e.g. early in annealing) the
-dense computation runs instead.
+dense computation runs instead. A gated result keeps its inputs, and
+:meth:`EStepResult.locale_weights` and :meth:`EStepResult.weights_ntm` recompute rows exactly as the
+dense E-step does (bit for bit), dropped triples included, so consumers that rank tiny weights (the
+visit choice of :class:`~pmht_opt.constraints.VisitAll`) see the same numbers.
 """
 
 from __future__ import annotations
