@@ -38,7 +38,8 @@ from scipy.spatial import cKDTree
 from pmht_opt.exceptions import ConfigError, PmhtOptError
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
-#: Above this coordinate magnitude the expanded form |z|^2 - 2 z.p + |p|^2 could overflow.
+#: Above this coordinate magnitude the squared differences could overflow (the dense E-step then uses
+#: ``hypot``; the gated one is not tried).
 _SAFE_SCALE = 1e100
 #: ``gate="auto"``: the margin is ``log(T M) + GATE_AUTO_NATS``, so the mass dropped from a (locale,
 #: platform) pair is below ``exp(-GATE_AUTO_NATS)`` (8.5e-17) of it, under half the float64 epsilon.
@@ -52,6 +53,7 @@ _UNDERFLOW = 746.0
 GATE_MAX_FRACTION = 0.1
 #: Locales sampled to estimate the number of candidates before committing to the gated E-step.
 _GATE_SAMPLE = 64
+
 
 @dataclass
 class EStepResult:
@@ -390,7 +392,8 @@ def _estep_gated(
     """
     M, T, _ = positions.shape
     N = z.shape[0]
-    if not np.all(np.isfinite(positions)) or float(np.max(np.abs(positions))) > 1e50:
+    scale = max(float(np.max(np.abs(positions))), float(np.max(np.abs(z))))
+    if not scale < _SAFE_SCALE:  # also NaN
         return None
     budget = GATE_MAX_FRACTION * N * T * M
     n_times = np.isfinite(log_tau).sum(axis=1) if log_tau is not None else np.full(N, T)
@@ -405,7 +408,7 @@ def _estep_gated(
         found = _support_candidates(log_tau, log_k, N, T, M)
     else:
         found = tree.candidates(budget)
-    if found is None:
+    if found is None or found[0].size == 0:
         return None
     row, t, plat, seg_count, seg_row = found
     # The candidates' log weights, with the dense E-step's arithmetic (bit for bit the same).
