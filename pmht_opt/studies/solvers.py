@@ -36,7 +36,6 @@ summaries), ``solvers.md`` (the tables) and ``solvers.png`` (time against positi
 
 from __future__ import annotations
 
-import functools
 import importlib.metadata
 import json
 import math
@@ -117,8 +116,17 @@ def cvxpy_solvers() -> list[str]:
     return sorted(names, key=lambda s: s != "CLARABEL")
 
 
+#: Suffix of a whole-plan backend label that runs the plan with ``accept_inaccurate=True``.
+ACCEPT = " (accept inaccurate)"
+#: Whole-plan variants run besides the plain backends: cvxpy/CLARABEL's plans stop at its
+#: 'optimal_inaccurate' (AlmostSolved at the tight unconstrained tolerances), so this shows what
+#: its plans would give if the planner took those solves.
+PLAN_VARIANTS = ("cvxpy/CLARABEL" + ACCEPT,)
+
+
 def backend_spec(label: str) -> tuple[str, dict[str, Any]]:
     """``("cvxpy", {"cvxpy_solver": "SCS"})`` for ``"cvxpy/SCS"``; ``(label, {})`` otherwise."""
+    label = label.removesuffix(ACCEPT)
     if label.startswith("cvxpy/"):
         return "cvxpy", {"cvxpy_solver": label.split("/", 1)[1]}
     return label, {}
@@ -279,10 +287,12 @@ def measure(
     conic: bool | None = None,
     constrained: bool = False,
     after_build: Callable[[MStep], None] | None = None,
+    close: bool = True,
 ) -> Measured:
     """Build a backend, solve iteration ``K`` (warm-up, includes setup/compilation), then time the
     M-step of iteration ``K + 1`` ``repeats`` times, re-solving ``K`` before each so a warm start
-    starts from where it would inside a plan. Never raises for a solver's failure: it is the result."""
+    starts from where it would inside a plan. Never raises for a solver's failure: it is the result.
+    ``close=False`` leaves the backend open for another measurement through the same ``build``."""
     built: list[MStep] = []
     try:
         with warnings.catch_warnings():
@@ -293,7 +303,7 @@ def measure(
         cls, raw, message = _error_status(err)
         return Measured(status=cls, raw_status=raw, message=message[:400])
     finally:
-        for ms in built:
+        for ms in built if close else ():
             ms.close()
 
 
@@ -407,6 +417,25 @@ def unconstrained_rows(
     return rows
 
 
+def _reusing(build: Callable[[], MStep]) -> Callable[[], MStep]:
+    """``build`` that builds once and hands the same backend out again."""
+    made: list[MStep] = []
+
+    def once() -> MStep:
+        if not made:
+            made.append(build())
+        return made[0]
+
+    return once
+
+
+def _tighten(ms: MStep) -> None:
+    """Put a cvxpy/CLARABEL backend on the reference's tolerances."""
+    opts = getattr(ms, "options", None)
+    if isinstance(opts, dict):
+        opts.update(CVXPY_REFERENCE_SETTINGS)
+
+
 def constrained_rows(
     it: Iterate, case: str, seed: int, labels: Sequence[str], repeats: int, bar: ProgressBar | None
 ) -> list[dict[str, Any]]:
@@ -443,27 +472,27 @@ def constrained_rows(
     poly = ref_poly.states if ref_poly.states is not None and ref_poly.status == STATUS_OK else None
     j_poly = mstep_objective(sc.model, poly, data_poly) if poly is not None else math.nan
 
-    runs: list[tuple[str, Callable[[], MStep], bool | None, Callable[[MStep], None] | None]] = []
+    # (label, build, conic, after_build, close)
+    runs: list[tuple[str, Callable[[], MStep], bool | None, Callable[[MStep], None] | None, bool]] = []
     for label in labels:
         solver, settings = backend_spec(label)
-        runs.append((label, qp(solver, settings or None), None, None))
-        if label == "clarabel":
-            runs.append(("clarabel (polygons)", qp("clarabel"), False, None))
         if label == "cvxpy/CLARABEL":
-            # The same problem at the reference's tolerances: how well the reference is determined.
-            def tighten(ms: MStep) -> None:
-                opts = getattr(ms, "options", None)
-                if isinstance(opts, dict):
-                    opts.update(CVXPY_REFERENCE_SETTINGS)
-
-            runs.append(("cvxpy/CLARABEL (tight)", qp("cvxpy", {"cvxpy_solver": "CLARABEL"}), None, tighten))
+            # Then the same problem at the reference's tolerances (how well the reference itself is
+            # determined), on the same compiled problem: compiling it again would cost ~25 s.
+            once = _reusing(qp(solver, settings))
+            runs.append((label, once, None, None, False))
+            runs.append(("cvxpy/CLARABEL (tight)", once, None, _tighten, True))
+            continue
+        runs.append((label, qp(solver, settings or None), None, None, True))
+        if label == "clarabel":
+            runs.append(("clarabel (polygons)", qp("clarabel"), False, None, True))
     rows = [_row(base, "reference (cones)", ref_cone, ref, j_ref, data_cone, sc)]
     rows[0]["reference_status"] = ref_cone.raw_status
-    for label, build, conic, after in runs:
+    for label, build, conic, after, close in runs:
         if label == "kalman":
             m = Measured(status=STATUS_NA, message="kalman takes no constraints")
         else:
-            m = measure(build, it, repeats, conic=conic, constrained=True, after_build=after)
+            m = measure(build, it, repeats, conic=conic, constrained=True, after_build=after, close=close)
         used_conic = conic if conic is not None else label != "osqp"
         data = data_cone if used_conic else data_poly
         row = _row(base, label, m, ref, j_ref, data_cone, sc)
@@ -488,18 +517,37 @@ def constrained_rows(
 # ------------------------------------------------------------------------------------------ whole plans
 
 
-@functools.lru_cache(maxsize=4)
+#: Kalman plans of this process (positions, total distance), by plan parameters: the reference of the
+#: other backends' trials, which follow the kalman trial of the same scenario.
+_KALMAN_PLANS: dict[tuple[str, int, int, int | None], tuple[np.ndarray, float]] = {}
+
+
 def _kalman_plan(kind: str, seed: int, iterations: int, horizon: int | None) -> tuple[np.ndarray, float]:
-    sc = study_scenario(kind, seed, horizon)
-    res = plan_pmht(sc, PMHTConfig(solver="kalman", max_iter=iterations, threads=1))
-    return res.positions.copy(), res.total_distance
+    key = (kind, seed, iterations, horizon)
+    if key not in _KALMAN_PLANS:
+        sc = study_scenario(kind, seed, horizon)
+        res = plan_pmht(sc, PMHTConfig(solver="kalman", max_iter=iterations, threads=1))
+        _remember(key, res.positions, res.total_distance)
+    return _KALMAN_PLANS[key]
+
+
+def _remember(key: tuple[str, int, int, int | None], positions: np.ndarray, distance: float) -> None:
+    while len(_KALMAN_PLANS) >= 4:
+        _KALMAN_PLANS.pop(next(iter(_KALMAN_PLANS)))
+    _KALMAN_PLANS[key] = (positions.copy(), distance)
 
 
 def plan_trial(kind: str, seed: int, backend: str, iterations: int, horizon: int | None) -> dict[str, Any]:
     """One whole plan with ``backend``; compared with the kalman plan of the same scenario."""
     sc = study_scenario(kind, seed, horizon)
     solver, settings = backend_spec(backend)
-    cfg = PMHTConfig(solver=solver, solver_settings=settings, max_iter=iterations, threads=1)
+    cfg = PMHTConfig(
+        solver=solver,
+        solver_settings=settings,
+        max_iter=iterations,
+        threads=1,
+        accept_inaccurate=backend.endswith(ACCEPT),
+    )
     done = [0]
 
     def progress(it: int, objective: float) -> None:
@@ -511,15 +559,18 @@ def plan_trial(kind: str, seed: int, backend: str, iterations: int, horizon: int
     except PmhtOptError as err:
         cls, raw, message = _error_status(err)
         return {
-            "status": cls,
+            # A plan that stops at an inaccurate solve has failed; 'n/a' and 'infeasible' stay.
+            "status": STATUS_FAILED if cls == STATUS_INACCURATE else cls,
             "raw_status": raw,
             "message": message[:400],
             "wall_time": time.perf_counter() - t0,
             "iterations_done": done[0],
+            "failed_at": done[0] + 1,
         }
     wall = time.perf_counter() - t0
     if backend == "kalman":
         ref_pos, ref_dist = res.positions, res.total_distance
+        _remember((kind, seed, iterations, horizon), ref_pos, ref_dist)
     else:
         ref_pos, ref_dist = _kalman_plan(kind, seed, iterations, horizon)
     it_hist = res.history.solver_iterations
@@ -566,8 +617,9 @@ def _statuses(rows: Sequence[Mapping[str, Any]]) -> str:
 
 
 def _why(rows: Sequence[Mapping[str, Any]]) -> str:
-    """The distinct raw statuses / messages of rows that are not optimal (shortened)."""
-    seen: list[str] = []
+    """The distinct raw statuses / messages of rows that are not optimal (shortened), with the EM
+    iterations at which plans stopped."""
+    seen: dict[str, list[int]] = {}
     for r in rows:
         if r["status"] == STATUS_OK:
             continue
@@ -575,9 +627,17 @@ def _why(rows: Sequence[Mapping[str, Any]]) -> str:
         text = str(text).replace("|", "/").replace("\n", " ")
         if len(text) > 90:
             text = text[:87] + "..."
-        if text and text not in seen:
-            seen.append(text)
-    return "; ".join(seen)
+        if text:
+            at = seen.setdefault(text, [])
+            if r.get("failed_at") is not None:
+                at.append(int(r["failed_at"]))
+        elif r["status"] == STATUS_INACCURATE:
+            seen.setdefault("inaccurate", [])
+    parts = []
+    for text, at in seen.items():
+        where = f" (at EM iteration {', '.join(str(i) for i in sorted(set(at)))})" if at else ""
+        parts.append(text + where)
+    return "; ".join(parts)
 
 
 Rows = Sequence[Mapping[str, Any]]
@@ -719,7 +779,8 @@ def markdown(
         "the iterate). **Kalman cannot take constraints: the reference is Clarabel at tolerance "
         f"{REFERENCE_TOL:g} with iterative refinement, with second-order cones** (the tightest "
         "setting at which Clarabel still reports 'Solved'; 'cvxpy/CLARABEL (tight)' is the same problem "
-        "at the same tolerances through cvxpy, and shows how far the reference itself is determined). "
+        "at the same tolerances through cvxpy, solved on the compiled problem of the row above it, and "
+        "shows how far the reference itself is determined). "
         "osqp and 'clarabel (polygons)' impose the cones as inner 16-gons, so their gap to the reference "
         "includes that approximation; the 'same problem' columns compare them with the reference solve "
         "of the polygonal problem. Violation: largest violation of the exact (circular) constraints.",
@@ -747,7 +808,9 @@ def markdown(
         "for each cvxpy solver (a cvxpy plan takes several seconds). **Reference: the kalman plan of the "
         "same scenario.** Plans are compared by statistics, not exactly: EM amplifies the M-steps' "
         "last-digit differences, so positions can drift apart over 100 iterations (SPEC section 6). "
-        "Plans do not accept inaccurate solves: such a plan fails, and is counted here.",
+        "Plans do not accept inaccurate solves: such a plan fails, and is counted here, with the EM "
+        "iteration it stopped at; the '(accept inaccurate)' variant runs the same plans with "
+        "`accept_inaccurate=True`.",
         "",
         "| backend | plans | status | median wall time (s) | median M-step time (s) | mean distance "
         "| max abs distance difference (rel.) | position difference: median | max "
@@ -914,10 +977,14 @@ def run(
 
     plan_rows: list[dict[str, Any]] = []
     if "plans" in parts:
+        plan_labels: list[str] = []
+        for label in labels:
+            plan_labels.append(label)
+            plan_labels += [v for v in PLAN_VARIANTS if v.removesuffix(ACCEPT) == label]
         trials = []
         for kind in kinds:
             for seed in range(max(seeds, cvxpy_seeds)):
-                for label in labels:
+                for label in plan_labels:
                     if seed >= (cvxpy_seeds if label.startswith("cvxpy/") else seeds):
                         continue
                     trials.append(
