@@ -736,7 +736,8 @@ def markdown(
     lines = [
         "# Study 2: M-step backends",
         "",
-        f"Machine: {settings['machine']}. QP backends on one thread. Times are medians of {repeats} solves "
+        f"Machine: {settings['machine']}; load average {settings['load_average']} (other jobs inflate "
+        "every time alike). QP backends on one thread. Times are medians of {repeats} solves "
         "of the same M-step (each after re-solving the previous iteration's M-step, so warm starts are "
         "as inside a plan); 'first solve' is the previous iteration's M-step solved right after setup, "
         "including cvxpy's compilation. Iterations: the sum over the platforms' QPs for clarabel and "
@@ -945,6 +946,7 @@ def run(
     """Run the study into ``out_dir``; return the summaries (also written to ``solvers.json``)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    load_start = _load()
     stages = dict(STAGES if stages is None else stages)
     names = cvxpy_solvers() if cvxpy_names is None else [str(s).upper() for s in cvxpy_names]
     labels = backends(names)
@@ -1018,6 +1020,7 @@ def run(
         "backends": labels,
         "reference_settings": REFERENCE_SETTINGS,
         "machine": f"{platform.machine()}, {_cpu_count()} cores",
+        "load_average": f"{load_start} at the start, {_load()} at the end",
         "versions": _versions(),
         "command": command,
     }
@@ -1031,6 +1034,16 @@ def run(
     if progress:
         print(text)
     return summary
+
+
+def _load() -> str:
+    """The 1-minute load average (other work on the machine inflates the times)."""
+    try:
+        import os
+
+        return f"{os.getloadavg()[0]:.1f}"
+    except (AttributeError, OSError):
+        return "unknown"
 
 
 def _cpu_count() -> int:
