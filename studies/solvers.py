@@ -5,9 +5,17 @@ kalman reference; writes studies/results/solvers/ (solvers.md, solvers.png, CSV 
 """
 
 import argparse
+import sys
 from pathlib import Path
 
-from pmht_opt.studies import solvers
+# Python puts this script's directory first on the path, where this file would shadow the top-level
+# ``solvers`` package the library imports: look it up from the repository root instead.
+HERE = Path(__file__).resolve().parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != HERE]
+sys.path.insert(0, str(HERE.parent))
+
+from pmht_opt.studies import solvers  # noqa: E402
+from pmht_opt.studies.common import executor_from_args  # noqa: E402
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser(description=__doc__)
@@ -15,12 +23,9 @@ if __name__ == "__main__":
     p.add_argument("--fresh", action="store_true", help="re-run the whole plans instead of resuming")
     p.add_argument("--quiet", action="store_true")
     a = p.parse_args()
-    from pmht_opt.studies.common import executor_from_args
-
-    out = Path(__file__).parent / "results" / "solvers"
     with executor_from_args(a) as ex:
         solvers.run(
-            out,
+            HERE / "results" / "solvers",
             executor=ex,
             progress=not a.quiet,
             resume=not a.fresh,

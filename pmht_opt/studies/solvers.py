@@ -737,7 +737,7 @@ def markdown(
         "# Study 2: M-step backends",
         "",
         f"Machine: {settings['machine']}; load average {settings['load_average']} (other jobs inflate "
-        "every time alike). QP backends on one thread. Times are medians of {repeats} solves "
+        f"every time alike). QP backends on one thread. Times are medians of {repeats} solves "
         "of the same M-step (each after re-solving the previous iteration's M-step, so warm starts are "
         "as inside a plan); 'first solve' is the previous iteration's M-step solved right after setup, "
         "including cvxpy's compilation. Iterations: the sum over the platforms' QPs for clarabel and "
