@@ -179,9 +179,9 @@ def _log_const(r: float, T: int, M: int, uniform_time: bool, uniform_platform: b
 
 
 def _log_weights_from_d2(d2: np.ndarray, r: float, const: float) -> np.ndarray:
-    """``-d2 / 2r - const`` in place. The dense E-step, the gated one and the row recompute all use
-    this and :func:`_squared_distance`'s arithmetic, so they give bit-identical log weights (ties
-    among times or platforms are then broken alike)."""
+    """``-d2 / 2r - const`` in place. The dense E-step (:func:`_dense_rows`), the gated one and the row
+    recompute all use this and the same elementwise ``(zx - px)^2 + (zy - py)^2``, so they give
+    bit-identical log weights (ties among times or platforms are then broken alike)."""
     d2 *= -0.5 / r
     d2 -= const
     return d2
@@ -201,31 +201,23 @@ class EStepInputs:
         """``w[n, t, m]`` as ``(T, M)``, computed as the dense E-step computes it (bit for bit)."""
         M, T, _ = self.positions.shape
         lt, lk = self.log_time_prior, self.log_platform_prior
+        p = np.ascontiguousarray(self.positions.transpose(1, 0, 2)).reshape(T * M, 2)
+        out = np.empty((1, T * M))
         const = _log_const(self.r, T, M, lt is None, lk is None)
-        p = self.positions.transpose(1, 0, 2).reshape(T * M, 2)
-        ll = _log_weights_from_d2(_squared_distance(self.locales[n : n + 1], p), self.r, const)
-        view = ll.reshape(1, T, M)
-        if lt is not None:
-            view += lt[n : n + 1, :, None]
-        if lk is not None:
-            view += lk[n : n + 1, None, :]
-        ll -= ll.max(axis=1)[:, None]
-        np.exp(ll, out=ll)
-        ll *= (1.0 / ll.sum(axis=1))[:, None]
-        return ll.reshape(T, M)
-
-
-def _squared_distance(z: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """``(len(z), len(p))`` squared distances ``(zx - px)^2 + (zy - py)^2``, elementwise (exact to
-    rounding, no cancellation); the y part in blocks of rows to keep the temporary small."""
-    out = np.subtract.outer(z[:, 0], p[:, 0])
-    out *= out
-    step = max(1, (1 << 17) // max(p.shape[0], 1))
-    for i in range(0, z.shape[0], step):
-        dy = np.subtract.outer(z[i : i + step, 1], p[:, 1])
-        dy *= dy
-        out[i : i + step] += dy
-    return out
+        rows = slice(n, n + 1)
+        _dense_rows(
+            self.locales[rows],
+            p,
+            None if lt is None else lt[rows],
+            None if lk is None else lk[rows],
+            self.r,
+            const,
+            T,
+            M,
+            out,
+            np.empty_like(out),
+        )
+        return out.reshape(T, M)
 
 
 def gate_margin(gate: float | str | None, T: int, M: int) -> float | None:
@@ -291,45 +283,95 @@ def estep(
         if gated is not None:
             return gated
     p = np.ascontiguousarray(positions.transpose(1, 0, 2)).reshape(T * M, 2)
-    scale = max(float(np.max(np.abs(p))), float(np.max(np.abs(z))))
     const = _log_const(r, T, M, log_time_prior is None, log_platform_prior is None)
+    TM = T * M
+    w = np.empty((N, TM))
+    lse = np.empty(N)
+    W = np.zeros(TM)
+    WZ = np.zeros((2, TM))
+    # Blocks of rows small enough to stay in cache through every pass.
+    step = max(1, _BLOCK // TM)
+    tmp = np.empty((min(step, N), TM))
+    for i in range(0, N, step):
+        j = min(i + step, N)
+        block = w[i:j]
+        lse[i:j] = _dense_rows(
+            z[i:j],
+            p,
+            None if log_time_prior is None else log_time_prior[i:j],
+            None if log_platform_prior is None else log_platform_prior[i:j],
+            r,
+            const,
+            T,
+            M,
+            block,
+            tmp[: j - i],
+        )
+        W += block.sum(axis=0)
+        WZ += z[i:j].T @ block
+    return EStepResult(
+        weights=w, W=W.reshape(T, M), WZ=WZ.T.reshape(T, M, 2), log_normaliser=lse, n_platforms=M
+    )
+
+
+#: Elements per block of rows in the dense E-step (1 MiB of float64: the block and a temporary stay in
+#: a 4 MiB L2 cache).
+_BLOCK = 1 << 17
+
+
+def _dense_rows(
+    z: np.ndarray,
+    p: np.ndarray,
+    log_tau: np.ndarray | None,
+    log_k: np.ndarray | None,
+    r: float,
+    const: float,
+    T: int,
+    M: int,
+    out: np.ndarray,
+    tmp: np.ndarray,
+) -> np.ndarray:
+    """Normalised weights of locales ``z`` against the ``(T*M, 2)`` points ``p`` into ``out``; returns
+    their log-normalisers. ``tmp`` is scratch of ``out``'s shape. Every row is computed on its own, with
+    the same operations whatever the block: the E-step and the exact row recompute agree bit for bit."""
+    scale = max(float(np.max(np.abs(p))), float(np.max(np.abs(z))))
     distance2 = None
     if scale < _SAFE_SCALE:
-        ll = _log_weights_from_d2(_squared_distance(z, p), r, const)
+        np.subtract.outer(z[:, 0], p[:, 0], out=out)
+        out *= out
+        np.subtract.outer(z[:, 1], p[:, 1], out=tmp)
+        tmp *= tmp
+        out += tmp
     else:
         # Far-away paths (a diverged plan): hypot avoids the overflow of the squared coordinates.
-        ll = np.hypot(z[:, None, 0] - p[None, :, 0], z[:, None, 1] - p[None, :, 1])
+        np.hypot(z[:, None, 0] - p[None, :, 0], z[:, None, 1] - p[None, :, 1], out=out)
         with np.errstate(over="ignore"):
-            ll *= ll
-        if not np.all(np.isfinite(ll)):
-            distance2 = ll.copy()
-        ll = _log_weights_from_d2(ll, r, const)
-    view = ll.reshape(N, T, M)
-    if log_time_prior is not None:
-        view += log_time_prior[:, :, None]
-    if log_platform_prior is not None:
-        view += log_platform_prior[:, None, :]
+            out *= out
+        if not np.all(np.isfinite(out)):
+            distance2 = out.copy()
+    ll = _log_weights_from_d2(out, r, const)
+    view = ll.reshape(-1, T, M)
+    if log_tau is not None:
+        view += log_tau[:, :, None]
+    if log_k is not None:
+        view += log_k[:, None, :]
     mx = ll.max(axis=1)
     bad = ~np.isfinite(mx)
     if np.any(bad):
-        _limit_rows(ll, mx, bad, distance2, log_time_prior, log_platform_prior, T, M)
+        _limit_rows(ll, mx, bad, distance2, log_tau, log_k, T, M)
     ll -= mx[:, None]
-    if np.mean(ll[:: max(N // 16, 1), :: max(T * M // 997, 1)] < -_UNDERFLOW) > 0.25:
+    below = ll < -_UNDERFLOW
+    if np.count_nonzero(below) > below.size // 4:
         # Mostly below -746, where exp is exactly 0 but takes numpy's slow path: skip those entries.
-        w = np.zeros_like(ll)
-        np.exp(ll, out=w, where=ll >= -_UNDERFLOW)
-        del ll, view
+        np.exp(ll, out=ll, where=~below)
+        ll[below] = 0.0
     else:
-        w = np.exp(ll, out=ll)
-    s = w.sum(axis=1)
-    w *= (1.0 / s)[:, None]
+        np.exp(ll, out=ll)
+    s = ll.sum(axis=1)
+    ll *= (1.0 / s)[:, None]
     lse = mx + np.log(s)
-    if np.any(bad):
-        lse[bad] = -np.inf  # the likelihood of these rows underflows to exactly zero
-    ll = w
-    W = ll.sum(axis=0).reshape(T, M)
-    WZ = (z.T @ ll).T.reshape(T, M, 2)
-    return EStepResult(weights=ll, W=W, WZ=WZ, log_normaliser=lse, n_platforms=M)
+    lse[bad] = -np.inf  # the likelihood of these rows underflows to exactly zero
+    return lse
 
 
 def _limit_rows(
