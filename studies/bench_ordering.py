@@ -17,14 +17,21 @@ import argparse
 import json
 import os
 import platform
+import sys
 import time
 from importlib import metadata
 from pathlib import Path
 
-import numpy as np
+# Python puts this script's directory first on the path, where studies/solvers.py would shadow the
+# top-level ``solvers`` package the library imports: look it up from the repository root instead.
+HERE = Path(__file__).resolve().parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != HERE]
+sys.path.insert(0, str(HERE.parent))
 
-from pmht_opt.ordering import solve_ga_tsp, solve_ortools
-from pmht_opt.scenario import paper_scenario
+import numpy as np  # noqa: E402
+
+from pmht_opt.ordering import solve_ga_tsp, solve_ortools  # noqa: E402
+from pmht_opt.scenario import paper_scenario  # noqa: E402
 
 GA_TARGET_S = 1.0
 #: Table 1 of the paper (SPEC section 5): GA-TSP total distance and CPU time per scenario.
@@ -126,6 +133,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "bench_ordering.json")
     args = parser.parse_args()
 
+    load_before = os.getloadavg()[0]  # other work on the machine slows the timings
     timing = bench_ga_time(args.repeats, args.iterations, args.population)
     distances = bench_distances(args.seeds, args.time_limit, args.iterations, args.population)
     payload = {
@@ -147,6 +155,7 @@ def main() -> None:
             "platform": platform.platform(),
             "numpy": _version("numpy"),
             "ortools": _version("ortools"),
+            "load_average_1min": {"before": round(load_before, 2), "after": round(os.getloadavg()[0], 2)},
         },
         "date": time.strftime("%Y-%m-%d"),
         "ga_timing": timing,

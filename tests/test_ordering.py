@@ -55,13 +55,15 @@ def _cut_sets(N: int, M: int, min_tour: int) -> tuple[np.ndarray, np.ndarray]:
 def _costs(scenario: Scenario, perms: np.ndarray, heads: np.ndarray, ends: np.ndarray) -> np.ndarray:
     """``(P, B)`` cost of every permutation split by every cut set, from prefix sums of chain legs."""
     z, s = scenario.locales, scenario.start_positions
-    pts = z[perms]  # (P, N, 2)
-    legs = np.linalg.norm(np.diff(pts, axis=1), axis=2)  # (P, N-1)
+    legs = np.linalg.norm(np.diff(z[perms], axis=1), axis=2)  # (P, N-1)
     prefix = np.concatenate([np.zeros((perms.shape[0], 1)), np.cumsum(legs, axis=1)], axis=1)  # (P, N)
-    # Internal length of a run head..end-1 is prefix[end - 1] - prefix[head].
-    inner = prefix[:, ends - 1] - prefix[:, heads]  # (P, B, M)
-    entry = np.linalg.norm(pts[:, heads, :] - s[None, None, :, :], axis=3)  # (P, B, M)
-    return (inner + entry).sum(axis=2)
+    entry = np.linalg.norm(s[:, None, :] - z[None, :, :], axis=2)  # (M, N): start m to locale n
+    total = np.zeros((perms.shape[0], heads.shape[0]))
+    for b, (run_heads, run_ends) in enumerate(zip(heads, ends, strict=True)):
+        for m, (head, end) in enumerate(zip(run_heads, run_ends, strict=True)):
+            # Internal length of a run head..end-1 is prefix[end - 1] - prefix[head].
+            total[:, b] += prefix[:, end - 1] - prefix[:, head] + entry[m, perms[:, head]]
+    return total
 
 
 def brute_force(scenario: Scenario, min_tour: int = 1) -> tuple[float, list[np.ndarray]]:
@@ -72,21 +74,6 @@ def brute_force(scenario: Scenario, min_tour: int = 1) -> tuple[float, list[np.n
     total = _costs(scenario, perms, heads, ends)
     p, b = np.unravel_index(int(np.argmin(total)), total.shape)
     return float(total[p, b]), [perms[p, heads[b, m] : ends[b, m]] for m in range(M)]
-
-
-def best_neighbour(scenario: Scenario, routes: list[np.ndarray], min_tour: int) -> float:
-    """Cheapest tour one GA move away: {copy, flip, swap, slide}(I, J) x {same or any new breaks}."""
-    N, M = scenario.n_locales, scenario.n_platforms
-    perm = np.concatenate(routes)
-    moves = [perm]
-    for i, j in itertools.combinations_with_replacement(range(N), 2):
-        flip, swap, slide = perm.copy(), perm.copy(), perm.copy()
-        flip[i : j + 1] = perm[i : j + 1][::-1]
-        swap[[i, j]] = perm[[j, i]]
-        slide[i : j + 1] = np.r_[perm[i + 1 : j + 1], perm[i]]
-        moves += [flip, swap, slide]
-    heads, ends = _cut_sets(N, M, min_tour)  # includes the current breaks
-    return float(_costs(scenario, np.array(moves), heads, ends).min())
 
 
 def assert_valid(result: TourResult, scenario: Scenario, min_tour: int = 1) -> None:
@@ -120,6 +107,25 @@ SMALL = [
 ]
 
 
+def _random_small(count: int, seed: int) -> list[tuple[int, int, int, int]]:
+    """Random (n, m, min_tour, seed): 5-8 locales, 2-3 platforms, min_tour above 1 in about 30 %."""
+    gen = np.random.default_rng(seed)
+    out = []
+    for k in range(count):
+        n, m = int(gen.integers(5, 9)), int(gen.integers(2, 4))
+        min_tour = int(gen.integers(1, n // m + 1)) if gen.random() < 0.3 else 1
+        out.append((n, m, min_tour, 100 + k))
+    return out
+
+
+#: More small instances, drawn at random once.
+RANDOM_SMALL = _random_small(12, 2024)
+#: GA seeds that must all reach the optimum on every small instance.
+GA_SEEDS = (0, 1, 2)
+#: Generations of the GA on the small instances (the paper's runs have 5000).
+GA_SMALL_ITERATIONS = 600
+
+
 # ------------------------------------------------------------------ the reference itself
 
 
@@ -139,23 +145,50 @@ def test_brute_force_agrees_with_tour_distance() -> None:
 # ------------------------------------------------------------------ GA
 
 
+def assert_ga_optimal(sc: Scenario, min_tour: int, best: float, ga_seed: int) -> TourResult:
+    res = solve_ga_tsp(sc, seed=ga_seed, iterations=GA_SMALL_ITERATIONS, min_tour=min_tour)
+    assert_valid(res, sc, min_tour)
+    assert res.total_distance == pytest.approx(best, rel=OPT_TOL), f"GA seed {ga_seed}"
+    assert np.all(np.diff(res.history) <= 0)
+    assert res.history[-1] == pytest.approx(res.total_distance, rel=1e-12)
+    return res
+
+
 @pytest.mark.parametrize(("n", "m", "min_tour", "seed"), SMALL)
-def test_ga_best_of_seeds_finds_brute_force_optimum(n: int, m: int, min_tour: int, seed: int) -> None:
-    """Kirk's GA keeps no diversity and has no crossover: one run can stall at a local optimum of its
-    move set even on 5 locales (about one run in five at 600 generations here). So: the best of five
-    seeds is optimal, and every run ends where no single GA move improves it (a check of the operators).
-    """
+def test_ga_every_seed_finds_brute_force_optimum(n: int, m: int, min_tour: int, seed: int) -> None:
+    """Every run is optimal, not only the best of several: the segment move, the route exchange and
+    restarts of a stalled population (ga module notes) get Kirk's GA out of its traps."""
     sc = instance(n, m, seed)
     best, _ = brute_force(sc, min_tour)
-    found = []
-    for ga_seed in range(5):
-        res = solve_ga_tsp(sc, seed=ga_seed, iterations=600, min_tour=min_tour)
-        assert_valid(res, sc, min_tour)
-        assert res.total_distance >= best - OPT_TOL
-        assert best_neighbour(sc, res.routes, min_tour) >= res.total_distance - OPT_TOL
-        found.append(res.total_distance)
-    assert min(found) == pytest.approx(best, rel=OPT_TOL)
-    assert max(found) <= 1.1 * best
+    for ga_seed in GA_SEEDS:
+        assert_ga_optimal(sc, min_tour, best, ga_seed)
+
+
+@pytest.mark.parametrize(("n", "m", "min_tour", "seed"), RANDOM_SMALL)
+def test_ga_every_seed_optimal_on_random_small_instances(n: int, m: int, min_tour: int, seed: int) -> None:
+    sc = instance(n, m, seed)
+    best, _ = brute_force(sc, min_tour)
+    restarts = [assert_ga_optimal(sc, min_tour, best, ga_seed).extras["restarts"] for ga_seed in GA_SEEDS]
+    assert min(restarts) > 0  # 600 generations are many restarts' worth on 8 locales
+
+
+@settings(max_examples=8, deadline=None, derandomize=True)
+@given(
+    n=st.integers(4, 7),
+    m=st.integers(2, 3),
+    min_tour=st.integers(1, 3),
+    seed=st.integers(0, 10**6),
+    ga_seed=st.integers(0, 2**32 - 1),
+)
+def test_ga_property_optimal_on_small_instances(
+    n: int, m: int, min_tour: int, seed: int, ga_seed: int
+) -> None:
+    """Derandomised: every run of the suite draws the same (checked) examples, so a rare miss on an
+    unseen one cannot make it flaky; the module notes of the GA give the measured miss rates."""
+    min_tour = max(1, min(min_tour, n // m))
+    sc = instance(n, m, seed)
+    best, _ = brute_force(sc, min_tour)
+    assert_ga_optimal(sc, min_tour, best, ga_seed)
 
 
 def test_ga_history_never_increases_and_ends_at_the_answer() -> None:
@@ -180,6 +213,15 @@ def test_ga_same_seed_same_tour() -> None:
         np.testing.assert_array_equal(x, y)
     # Another seed is free to differ; it must still be a valid tour.
     assert_valid(solve_ga_tsp(sc, seed=8, iterations=200), sc)
+    # The same with restarts (they draw from the same generator).
+    small = instance(8, 3, 4)
+    a = solve_ga_tsp(small, seed=7, iterations=300, min_tour=2)
+    b = solve_ga_tsp(small, seed=7, iterations=300, min_tour=2)
+    assert a.extras["restarts"] > 0
+    assert a.extras == b.extras
+    np.testing.assert_array_equal(a.history, b.history)
+    for x, y in zip(a.routes, b.routes, strict=True):
+        np.testing.assert_array_equal(x, y)
 
 
 def test_ga_callback_sees_every_iteration() -> None:
@@ -207,7 +249,7 @@ def test_ga_on_scenario_a_improves_on_its_start() -> None:
     res = solve_ga_tsp(sc, seed=0, iterations=500)
     assert_valid(res, sc)
     assert res.history[-1] < 0.6 * res.history[0]
-    assert res.extras == {"population": 80, "iterations": 500, "min_tour": 1}
+    assert res.extras == {"population": 80, "iterations": 500, "min_tour": 1, "restarts": 0}
 
 
 @settings(max_examples=30, deadline=None)
