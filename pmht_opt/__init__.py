@@ -3,6 +3,7 @@
 Public names are re-exported here; see README.md for an overview.
 """
 
+from pmht_opt.anneal import Anneal
 from pmht_opt.constraints import (
     AccelLimit,
     AreaBounds,
@@ -27,7 +28,6 @@ from pmht_opt.exceptions import (
 from pmht_opt.model import MotionModel
 from pmht_opt.mstep import available_backends
 from pmht_opt.ordering import TourResult, order_locales, solve_ga_tsp, solve_ortools, tour_distance
-from pmht_opt.anneal import Anneal
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario, paper_scenario
@@ -36,8 +36,8 @@ from pmht_opt.smoothed import plan_smoothed
 __version__ = "0.1.0"
 
 __all__ = [
-    "Anneal",
     "AccelLimit",
+    "Anneal",
     "AreaBounds",
     "CircleObstacle",
     "ConfigError",
