@@ -31,8 +31,8 @@ def order_locales(scenario: Scenario, method: str = "ga", **options: Any) -> Tou
         ``"ga"`` (:func:`solve_ga_tsp`, the paper's baseline) or ``"ortools"`` (:func:`solve_ortools`,
         near-optimal; needs the ``ortools`` extra).
     options
-        Keyword options of the chosen method, e.g. ``seed``, ``iterations``, ``min_tour`` for the GA or
-        ``time_limit``, ``min_tour`` for OR-Tools.
+        Keyword options of the chosen method, e.g. ``seed``, ``iterations``, ``min_tour``, ``operators``
+        (``"improved"`` or the paper's ``"kirk"``) for the GA or ``time_limit``, ``min_tour`` for OR-Tools.
 
     Raises
     ------

@@ -1,5 +1,16 @@
 r"""The GA-TSP baseline: a Kirk-style genetic algorithm for the open multiple TSP (SPEC section 3).
 
+Two variants, chosen by ``operators`` (:class:`GAParams`):
+
+``"improved"`` (the default)
+    Kirk's flip and swap, a segment move and a route exchange instead of his two slides, and restarts of
+    a stalled population: every seed reaches the optimum on small instances (below), so this is the GA to
+    use as an ordering.
+``"kirk"``
+    The paper's GA as published (Kirk's operators, no restarts), for replicating the paper's Table 1: on
+    its scenarios the improved GA is much stronger than the baseline the paper compared against. It is
+    bit for bit the GA of this module before the improvements (same seed, same tours and history).
+
 Encoding
 --------
 A solution is a permutation ``p`` of the ``N`` locales and ``M - 1`` sorted break points
@@ -42,7 +53,8 @@ slot  order                           breaks
 ====  ==============================  ============================================
 
 and, beyond Kirk's GA, a run that stops improving is *restarted* (below). With one platform there is
-no route to exchange and slot 7 is Kirk's slide.
+no route to exchange and slot 7 is Kirk's slide. ``operators="kirk"`` keeps Kirk's children (slot 3 the
+slide, slot 7 the slide with new random breaks) and never restarts.
 
 *Segment move* (or-opt): the block ``p[I .. I+r-1]``, ``1 <= r <= J - I`` uniform, goes behind ``p[J]``,
 reversed with probability ``REVERSE``; unreversed with ``r = 1`` it is Kirk's slide. The breaks follow:
@@ -92,8 +104,10 @@ Notes
 -----
 The initial population is ``population`` random permutations with random breaks. Random numbers are drawn
 in batches of up to ``_CHUNK`` generations (restarts draw theirs when they happen), so a seed fixes the
-whole run. On the 10 x 10 grid of scenario A many tours tie exactly, so which of them wins depends on the
-last bits of the floating-point sums.
+whole run. The Kirk variant always draws batches of ``_CHUNK`` and only the old draws (no segment
+lengths, reversals or route pairs; four sets of new breaks per group), so it consumes the generator exactly
+as before the improvements. On the 10 x 10 grid of scenario A many tours tie exactly, so which of them wins
+depends on the last bits of the floating-point sums.
 """
 
 from __future__ import annotations
@@ -118,6 +132,8 @@ STALL = 5.0
 REVERSE = 0.5
 #: Iterations whose random numbers are drawn in one batch (amortises the Generator's call overhead).
 _CHUNK = 128
+#: The variants of :func:`solve_ga_tsp` (module notes): the default first.
+OPERATORS = ("improved", "kirk")
 #: Cap on the entries of each of a batch's precomputed index arrays (smaller batches for large ``N``).
 _CHUNK_ENTRIES = 1 << 17
 
@@ -136,11 +152,15 @@ class GAParams:
         Number of generations. Paper: 5000.
     min_tour
         Minimum number of locales per route (Kirk's ``minTour``), ``>= 1``.
+    operators
+        ``"improved"`` (default: segment move, route exchange, restarts) or ``"kirk"`` (the paper's GA,
+        for replication); see the module notes.
     """
 
     population: int = 80
     iterations: int = 5000
     min_tour: int = 1
+    operators: str = "improved"
 
     def __post_init__(self) -> None:
         pop = self.population
@@ -149,6 +169,10 @@ class GAParams:
         object.__setattr__(self, "population", int(pop))
         object.__setattr__(self, "iterations", _check_int("iterations", self.iterations, 1))
         object.__setattr__(self, "min_tour", _check_int("min_tour", self.min_tour, 1))
+        if not isinstance(self.operators, str) or self.operators not in OPERATORS:
+            raise ConfigError(
+                f"operators: expected one of {', '.join(map(repr, OPERATORS))}, got {self.operators!r}."
+            )
 
 
 def _rng(seed: Any) -> np.random.Generator:
@@ -190,6 +214,7 @@ def solve_ga_tsp(
     iterations: int = 5000,
     min_tour: int = 1,
     callback: Callback | None = None,
+    operators: str = "improved",
 ) -> TourResult:
     """Order the locales with the Kirk-style GA for the open multiple TSP (SPEC section 3).
 
@@ -208,14 +233,21 @@ def solve_ga_tsp(
         Minimum locales per route, ``>= 1`` with ``min_tour * M <= N``.
     callback
         Called as ``callback(iteration, best_cost)`` after each generation (``iteration`` from 0).
+    operators
+        ``"improved"`` (default): segment move and route exchange instead of Kirk's slides, and restarts
+        of a stalled population; every seed reaches the optimum on small instances, so it is the better
+        ordering. ``"kirk"``: the paper's GA (flip, swap, slide, and the same with new random breaks; no
+        restarts), to replicate the paper's baseline; bit-identical to this module's GA before the
+        improvements (commit be6fbcd^) for the same seed and parameters.
 
     Returns
     -------
     TourResult
         ``history[i]`` is the best cost after generation ``i``; route ``m`` is platform ``m``'s;
-        ``extras["restarts"]`` counts the restarts of a stalled population (module notes).
+        ``extras["restarts"]`` counts the restarts of a stalled population (module notes; always 0 with
+        ``"kirk"``) and ``extras["operators"]`` names the variant.
     """
-    params = GAParams(population, iterations, min_tour)
+    params = GAParams(population, iterations, min_tour, operators)
     check_min_tour(scenario, params.min_tour)
     if callback is not None and not callable(callback):
         raise ConfigError(f"callback: expected a callable(iteration, best_cost) or None, got {callback!r}.")
@@ -236,6 +268,7 @@ def solve_ga_tsp(
             "iterations": params.iterations,
             "min_tour": params.min_tour,
             "restarts": restarts,
+            "operators": params.operators,
         },
     )
 
@@ -246,14 +279,15 @@ def _stall_limit(N: int, groups: int) -> int:
 
 
 def _order_moves(
-    IJ: np.ndarray, block_u: np.ndarray, reverse: np.ndarray, N: int, slide: bool
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    IJ: np.ndarray, block_u: np.ndarray | None, reverse: np.ndarray | None, N: int, slide: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """Gather indices of the moves that do not depend on the parent's breaks, for a batch of generations.
 
     ``IJ (n, G, 2)`` are the sorted ``I <= J`` of ``n`` generations of ``G`` groups. Returns, each
     ``(n, G, N)`` and local to the group (position ``k`` of a child reads position ``idx[k]`` of its
     parent): the flip, the swap, the segment move, the segment move's new position of each old position
-    (where the breaks go), and Kirk's slide if ``slide``, else None.
+    (where the breaks go), and Kirk's slide if ``slide``, else None. Without ``block_u`` (the Kirk
+    variant) the segment move and its positions are None.
     """
     dtype: Any = np.int16 if N < 2**15 else np.intp  # small ints: these arrays are memory bound
     k = np.arange(N, dtype=dtype)
@@ -261,6 +295,9 @@ def _order_moves(
     inside = (k >= I) & (k <= J)
     flip = np.where(inside, I + J - k, k)
     swap = np.where(k == I, J, np.where(k == J, I, k))
+    slides = np.where(inside, np.where(k == J, I, k + 1), k) if slide else None
+    if block_u is None or reverse is None:
+        return flip, swap, None, None, slides
     # Segment move: the block p[I .. I+r-1] goes behind p[J] (r = 1 unreversed is Kirk's slide),
     # reversed with probability REVERSE; 1 <= r <= J - I (r = 1 and no move if I = J).
     span = J - I + 1
@@ -270,7 +307,6 @@ def _order_moves(
     # Old position -> new one, for the heads: those inside the block (but not at I) move with it, those
     # after it up to J move up by r. A head at I stays: the block leaves the front of that route.
     moves_to = k + np.where(inside & (k > I), np.where(k < I + r, span - r, -r), 0)
-    slides = np.where(inside, np.where(k == J, I, k + 1), k) if slide else None
     return flip, swap, seg, moves_to, slides
 
 
@@ -282,6 +318,7 @@ def _evolve(
     s = scenario.start_positions
     N, M = z.shape[0], s.shape[0]
     P, G, iters, min_tour = params.population, params.population // GROUP, params.iterations, params.min_tour
+    kirk = params.operators == "kirk"  # Kirk's slides, four sets of new breaks, no restarts
 
     # One table of leg lengths: rows 0..N-1 are locales, rows N..N+M-1 the starts, so every locale's
     # incoming leg is table[prev * N + locale] with prev the previous locale or, at a route head, the
@@ -311,13 +348,15 @@ def _evolve(
     runs = np.empty((G, 5), dtype=np.intp)
     shifts = np.zeros((G, 5), dtype=np.intp)
     pairs = np.array([(a, b) for a in range(M) for b in range(a + 1, M)], dtype=np.intp).reshape(-1, 2)
-    chunk = max(1, min(_CHUNK, _CHUNK_ENTRIES // (G * N)))
+    # Kirk's GA keeps the old batch size: it fixes the order of the draws and so the results.
+    chunk = _CHUNK if kirk else max(1, min(_CHUNK, _CHUNK_ENTRIES // (G * N)))
+    n_fresh = 4 if kirk else 3  # children with new random breaks
 
     best_cost = np.inf
     best_perm = pop[0].copy()
     best_heads = heads[0].copy()
     history = np.empty(iters)
-    limit = _stall_limit(N, G)
+    limit = np.inf if kirk else _stall_limit(N, G)
     run_best = np.inf  # best cost since the last (re)start
     stall = 0  # generations since run_best last fell
     restarts = 0
@@ -328,11 +367,14 @@ def _evolve(
             n = min(chunk, iters - it)
             orders = rng.permuted(np.tile(np.arange(P), (n, 1)), axis=1).reshape(n, G, GROUP)
             IJ = np.sort(rng.integers(0, N, size=(n, G, 2)), axis=2)
-            fresh = _random_heads(rng, n * G * 3, N, M, min_tour).reshape(n, G, 3, M)
-            block_u = rng.random((n, G, 1))
-            reverse = rng.random((n, G, 1)) < REVERSE
-            pair = pairs[rng.integers(0, max(len(pairs), 1), size=(n, G))] if M > 1 else None
-            flips, swaps, segs, moves_to, slides = _order_moves(IJ, block_u, reverse, N, M == 1)
+            fresh = _random_heads(rng, n * G * n_fresh, N, M, min_tour).reshape(n, G, n_fresh, M)
+            if kirk:
+                block_u = reverse = pair = None
+            else:
+                block_u = rng.random((n, G, 1))
+                reverse = rng.random((n, G, 1)) < REVERSE
+                pair = pairs[rng.integers(0, max(len(pairs), 1), size=(n, G))] if M > 1 else None
+            flips, swaps, segs, moves_to, slides = _order_moves(IJ, block_u, reverse, N, kirk or M == 1)
             if pair is not None:
                 # Flat indices into bounds of route m1's head and end, route m2's head and end.
                 ends4 = np.concatenate(
@@ -369,19 +411,24 @@ def _evolve(
         ph = heads[winners]
         np.add(flips[c], goff, out=idx[:, 1])
         np.add(swaps[c], goff, out=idx[:, 2])
-        np.add(segs[c], goff, out=idx[:, 3])
         idx[:, 5] = idx[:, 1]
         idx[:, 6] = idx[:, 2]
         new_heads[:, :4] = ph[:, None, :]
-        new_heads[:, 4:7] = fresh[c]
+        new_heads[:, 4 : 4 + n_fresh] = fresh[c]
 
-        # The segment move's breaks follow their locales; a route left shorter than min_tour (or empty)
-        # keeps the parent's breaks instead.
-        bounds[:, :M] = moves_to[c][grows[:, None], ph]
-        fits = (bounds[:, 1:] - bounds[:, :-1]).min(axis=1) >= min_tour
-        np.copyto(new_heads[:, 3], bounds[:, :M], where=fits[:, None])
+        if segs is not None and moves_to is not None:
+            # The segment move's breaks follow their locales; a route left shorter than min_tour (or
+            # empty) keeps the parent's breaks instead.
+            np.add(segs[c], goff, out=idx[:, 3])
+            bounds[:, :M] = moves_to[c][grows[:, None], ph]
+            fits = (bounds[:, 1:] - bounds[:, :-1]).min(axis=1) >= min_tour
+            np.copyto(new_heads[:, 3], bounds[:, :M], where=fits[:, None])
 
-        if slides is not None:  # one platform: Kirk's slide
+        if kirk:  # Kirk's slide, with the parent's breaks (slot 3) and new ones (slot 7, set above)
+            assert slides is not None
+            np.add(slides[c], goff, out=idx[:, 3])
+            idx[:, 7] = idx[:, 3]
+        elif slides is not None:  # one platform: Kirk's slide
             np.add(slides[c], goff, out=idx[:, 7])
             new_heads[:, 7] = ph
         elif pair is not None:

@@ -40,6 +40,7 @@ from pmht_opt.scenario import Scenario, paper_scenario
 METHODS: dict[str, str] = {
     "ga": "GA-TSP",
     "ga-smoothed": "GA-TSP PMHT smoothed",
+    "ga-improved": "GA-TSP (improved operators)",
     "pmht-paper": "PMHT (paper's settings)",
     "pmht": "PMHT (default: annealed)",
     "pmht-visitall": "PMHT + VisitAll(0.1)",
@@ -62,7 +63,7 @@ def _order(sc: Scenario, method: str, seed: int) -> Any:
     from pmht_opt.ordering import solve_ga_tsp, solve_ortools
 
     if method.startswith("ga"):
-        return solve_ga_tsp(sc, seed=seed)
+        return solve_ga_tsp(sc, seed=seed, operators="improved" if method == "ga-improved" else "kirk")
     return solve_ortools(sc, time_limit=60.0, metaheuristic="GREEDY_DESCENT")
 
 
@@ -71,7 +72,7 @@ def _plan(sc: Scenario, method: str, seed: int, snapshots: tuple[int, ...] = ())
     from pmht_opt.constraints import VisitAll
     from pmht_opt.smoothed import plan_smoothed
 
-    if method in ("ga", "ortools"):
+    if method in {"ga", "ga-improved", "ortools"}:
         return _order(sc, method, seed)
     if method in ("ga-smoothed", "ortools-smoothed"):
         return plan_smoothed(sc, _order(sc, method, seed), PMHTConfig(threads=1), VISIT_RADIUS)
@@ -96,7 +97,7 @@ def trial(kind: str, seed: int, method: str) -> dict[str, Any]:
     out = _plan(sc, method, seed, snapshots=(5, 20) if figure and method.startswith("pmht") else ())
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     row: dict[str, Any]
-    if method in ("ga", "ortools"):
+    if method in {"ga", "ga-improved", "ortools"}:
         lines = [np.vstack([sc.start_positions[m : m + 1], sc.locales[r]]) for m, r in enumerate(out.routes)]
         row = {
             "distance": float(out.total_distance),
