@@ -3,9 +3,12 @@
 Every trial is one (scenario, seed, method). The methods:
 
 ``ga``
-    The paper's GA-TSP (population 80, 5000 iterations): straight legs between locales.
+    The paper's GA-TSP (Kirk's operators, ``operators="kirk"``; population 80, 5000 iterations):
+    straight legs between locales.
 ``ga-smoothed``
-    GA-TSP PMHT smoothed: the GA's tour as hard ordered visit constraints (radius 0.1).
+    GA-TSP PMHT smoothed: that GA's tour as hard ordered visit constraints (radius 0.1).
+``ga-improved``
+    The project's default GA (segment move, route exchange, restarts; ``operators="improved"``).
 ``ortools``
     The OR-Tools ordering (greedy descent from the cheapest-arc start: deterministic; guided local
     search for 2 s gave the same tours on the scenarios tried).
