@@ -438,6 +438,13 @@ def _estep_gated(
     if not scale < _SAFE_SCALE:  # also NaN
         return None
     budget = GATE_MAX_FRACTION * N * T * M
+    # Cheap first look: a disc of the gate's radius around every locale already covers this fraction
+    # of the area the locales and paths span (the candidates measured are about twice that).
+    lo = np.minimum(z.min(axis=0), positions.min(axis=(0, 1)))
+    hi = np.maximum(z.max(axis=0), positions.max(axis=(0, 1)))
+    area = float(np.prod(hi - lo))
+    if area > 0 and math.pi * 2.0 * r * margin > GATE_MAX_FRACTION * area and log_tau is None:
+        return None
     n_times = np.isfinite(log_tau).sum(axis=1) if log_tau is not None else np.full(N, T)
     n_plats = np.isfinite(log_k).sum(axis=1) if log_k is not None else np.full(N, M)
     support = float(np.sum(n_times * n_plats))
