@@ -5,9 +5,16 @@ writes studies/results/scaling/ (scaling.csv, scaling.json, scaling.md, scaling.
 """
 
 import argparse
+import sys
 from pathlib import Path
 
-from pmht_opt.studies import scaling
+# Python puts this script's directory first on the path, where studies/solvers.py would shadow the
+# top-level ``solvers`` package the library imports: look it up from the repository root instead.
+HERE = Path(__file__).resolve().parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != HERE]
+sys.path.insert(0, str(HERE.parent))
+
+from pmht_opt.studies import scaling  # noqa: E402
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -15,5 +22,5 @@ if __name__ == "__main__":
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     scaling.add_arguments(p)
     a = p.parse_args()
-    a.out = Path(__file__).parent / "results" / "scaling"
+    a.out = HERE / "results" / "scaling"
     raise SystemExit(scaling.main(a))
