@@ -544,6 +544,7 @@ def plot(summary: Mapping[str, Any], path: Path) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
 
     fig, axes = plt.subplots(2, 3, figsize=(15, 8.5))
     for col, (axis, entry) in enumerate(summary["sweeps"].items()):
@@ -567,6 +568,8 @@ def plot(summary: Mapping[str, Any], path: Path) -> Path:
         axes[1, col].set_ylabel("peak RSS above baseline (MiB)")
         for ax in axes[:, col]:
             ax.set_xlabel(axis)
+            ax.set_xticks(xs, [str(x) for x in xs])
+            ax.xaxis.set_minor_formatter(NullFormatter())
             ax.grid(True, which="both", alpha=0.3)
             ax.legend()
     h = summary["headline"]["auto"]
