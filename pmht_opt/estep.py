@@ -111,7 +111,7 @@ class EStepResult:
         with every triple (the dropped ones too), as the dense E-step gives it."""
         w = self.weights
         if self.inputs is not None:
-            return np.stack([self.locale_weights(n) for n in range(w.shape[0])])
+            return self.inputs.rows(0, w.shape[0]).reshape(w.shape[0], -1, self.n_platforms)
         dense = w.toarray() if isinstance(w, sp.csr_matrix) else w
         return np.asarray(dense).reshape(w.shape[0], -1, self.n_platforms)
 
@@ -120,7 +120,7 @@ class EStepResult:
         recomputed with every triple, so the ones the gate dropped keep their (tiny) values and order."""
         w = self.weights
         if self.inputs is not None:
-            return self.inputs.row(n)
+            return self.inputs.rows(n, n + 1).reshape(-1, self.n_platforms)
         if isinstance(w, sp.csr_matrix):
             out = np.zeros(w.shape[1])
             lo, hi = w.indptr[n], w.indptr[n + 1]
@@ -197,27 +197,30 @@ class EStepInputs:
     log_platform_prior: np.ndarray | None
     r: float
 
-    def row(self, n: int) -> np.ndarray:
-        """``w[n, t, m]`` as ``(T, M)``, computed as the dense E-step computes it (bit for bit)."""
+    def rows(self, lo: int, hi: int) -> np.ndarray:
+        """``w[lo:hi]`` as ``(hi - lo, T*M)``, computed as the dense E-step computes it (bit for bit)."""
         M, T, _ = self.positions.shape
         lt, lk = self.log_time_prior, self.log_platform_prior
         p = np.ascontiguousarray(self.positions.transpose(1, 0, 2)).reshape(T * M, 2)
-        out = np.empty((1, T * M))
+        out = np.empty((hi - lo, T * M))
         const = _log_const(self.r, T, M, lt is None, lk is None)
-        rows = slice(n, n + 1)
-        _dense_rows(
-            self.locales[rows],
-            p,
-            None if lt is None else lt[rows],
-            None if lk is None else lk[rows],
-            self.r,
-            const,
-            T,
-            M,
-            out,
-            np.empty_like(out),
-        )
-        return out.reshape(T, M)
+        step = max(1, _BLOCK // (T * M))
+        tmp = np.empty((min(step, hi - lo), T * M))
+        for i in range(lo, hi, step):
+            j = min(i + step, hi)
+            _dense_rows(
+                self.locales[i:j],
+                p,
+                None if lt is None else lt[i:j],
+                None if lk is None else lk[i:j],
+                self.r,
+                const,
+                T,
+                M,
+                out[i - lo : j - lo],
+                tmp[: j - i],
+            )
+        return out
 
 
 def gate_margin(gate: float | str | None, T: int, M: int) -> float | None:
