@@ -60,3 +60,8 @@ def test_quick_solvers_study(tmp_path: Path) -> None:
     text = (tmp_path / "solvers.md").read_text()
     assert "Reference: the kalman (RTS) smoother" in text
     assert "Kalman cannot take constraints: the reference is Clarabel" in text
+
+    # The tables again from the raw tables alone: the same text.
+    (tmp_path / "solvers.md").unlink()
+    assert main(["study", "solvers", "--out", str(tmp_path), "--tables-only", "--quiet"]) == 0
+    assert (tmp_path / "solvers.md").read_text() == text

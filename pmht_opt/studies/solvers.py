@@ -52,9 +52,9 @@ import numpy as np
 from pmht_opt.constraints import AreaBounds, CircleObstacle, SpeedLimit
 from pmht_opt.constraints.base import Constraint, ConstraintContext
 from pmht_opt.estep import EStepResult, estep, safe_log
-from pmht_opt.exceptions import InfeasibleError, PmhtOptError, SolverError
+from pmht_opt.exceptions import ConfigError, InfeasibleError, PmhtOptError, SolverError
 from pmht_opt.model import POS, VEL
-from pmht_opt.montecarlo import run_trials, summarise, write_table
+from pmht_opt.montecarlo import read_table, run_trials, summarise, write_table
 from pmht_opt.mstep import MStep, MStepData, available_backends, make_mstep, mstep_objective
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.progress import ProgressBar
@@ -693,6 +693,7 @@ def summarise_plans(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
                 "median_wall_time_s": _median([r.get("wall_time") for r in good]),
                 "median_mstep_time_s": _median([r.get("mstep_time") for r in good]),
                 "mean_distance": summarise(_finite([r.get("total_distance") for r in good]))["mean"],
+                "kalman_mean_distance": summarise(_finite([r.get("kalman_distance") for r in good]))["mean"],
                 "max_abs_distance_rel_diff": _max_abs([r.get("distance_rel_diff") for r in good]),
                 "median_max_pos_diff": diffs["median"],
                 "max_max_pos_diff": diffs["max"],
@@ -814,6 +815,7 @@ def markdown(
         "`accept_inaccurate=True`.",
         "",
         "| backend | plans | status | median wall time (s) | median M-step time (s) | mean distance "
+        "(kalman, same plans) "
         "| max abs distance difference (rel.) | position difference: median | max "
         "| solver iterations per M-step | notes |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
@@ -821,7 +823,8 @@ def markdown(
     for s in plans:
         lines.append(
             f"| {s['backend']} | {s['plans']} | {s['statuses']} | {_f(s['median_wall_time_s'])} "
-            f"| {_f(s['median_mstep_time_s'])} | {_f(s['mean_distance'], 3)} "
+            f"| {_f(s['median_mstep_time_s'])} "
+            f"| {_f(s['mean_distance'], 3)} ({_f(s['kalman_mean_distance'], 3)}) "
             f"| {_f(s['max_abs_distance_rel_diff'])} | {_f(s['median_max_pos_diff'])} "
             f"| {_f(s['max_max_pos_diff'])} | {_it(s['mean_solver_iterations'])} | {s['why']} |"
         )
@@ -857,10 +860,25 @@ def plot(msteps: Sequence[Mapping[str, Any]], plan_rows: Sequence[Mapping[str, A
     import matplotlib.pyplot as plt
 
     floor = 1e-16
+    from matplotlib.ticker import NullFormatter
+
     labels = list(dict.fromkeys([str(r["backend"]) for r in msteps] + [str(r["backend"]) for r in plan_rows]))
-    cmap = plt.get_cmap("tab10")
-    markers = "osD^v<>PXph*H"
-    style = {b: (cmap(i % 10), markers[i % len(markers)]) for i, b in enumerate(labels)}
+    style: dict[str, tuple[str, str]] = {
+        "kalman": ("black", "o"),
+        "reference (cones)": ("black", "h"),
+        "clarabel": ("tab:blue", "s"),
+        "clarabel (polygons)": ("tab:blue", "*"),
+        "osqp": ("tab:green", "D"),
+        "cvxpy/CLARABEL": ("tab:red", "^"),
+        "cvxpy/CLARABEL (tight)": ("tab:red", "v"),
+        "cvxpy/CLARABEL" + ACCEPT: ("tab:red", "<"),
+        "cvxpy/OSQP": ("tab:olive", ">"),
+        "cvxpy/SCS": ("tab:purple", "p"),
+    }
+    spare = [(c, m) for m in "XPd" for c in ("tab:orange", "tab:brown", "tab:pink", "tab:cyan", "tab:gray")]
+    for b in labels:
+        if b not in style:
+            style[b] = spare[len(style) % len(spare)]
     fig, axes = plt.subplots(1, 3, figsize=(17, 5.5))
     unc = [r for r in msteps if r["part"] == "unconstrained"]
     con = [r for r in msteps if r["part"] == "constrained"]
@@ -892,6 +910,7 @@ def plot(msteps: Sequence[Mapping[str, Any]], plan_rows: Sequence[Mapping[str, A
             shown.add(b)
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_title(title)
         ax.set_xlabel("wall time per plan (s)" if tkey == "wall_time" else "M-step solve time (s)")
         ax.set_ylabel("max position difference to the reference")
@@ -942,10 +961,16 @@ def run(
     progress: bool = True,
     resume: bool = True,
     command: str = "pmht-opt study solvers",
+    tables_only: bool = False,
 ) -> dict[str, Any]:
-    """Run the study into ``out_dir``; return the summaries (also written to ``solvers.json``)."""
+    """Run the study into ``out_dir``; return the summaries (also written to ``solvers.json``).
+
+    ``tables_only`` rewrites the summaries, tables and figure from the raw tables already in
+    ``out_dir`` (and the settings in its ``solvers.json``) without measuring anything."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    if tables_only:
+        return _report(out_dir, progress)
     load_start = _load()
     stages = dict(STAGES if stages is None else stages)
     names = cvxpy_solvers() if cvxpy_names is None else [str(s).upper() for s in cvxpy_names]
@@ -1024,9 +1049,15 @@ def run(
         "versions": _versions(),
         "command": command,
     }
+    return _write(out_dir, settings, mstep_rows, plan_rows, progress)
+
+
+def _write(
+    out_dir: Path, settings: Mapping[str, Any], mstep_rows: Rows, plan_rows: Rows, progress: bool
+) -> dict[str, Any]:
     mstep_summary = summarise_msteps(mstep_rows)
     plan_summary = summarise_plans(plan_rows)
-    summary = {"settings": settings, "msteps": mstep_summary, "plans": plan_summary}
+    summary = {"settings": dict(settings), "msteps": mstep_summary, "plans": plan_summary}
     (out_dir / "solvers.json").write_text(json.dumps(summary, indent=1, default=_json_default) + "\n")
     text = markdown(mstep_summary, plan_summary, plan_rows, settings)
     (out_dir / "solvers.md").write_text(text)
@@ -1034,6 +1065,33 @@ def run(
     if progress:
         print(text)
     return summary
+
+
+def _report(out_dir: Path, progress: bool) -> dict[str, Any]:
+    """Summaries, tables and figure again from the raw tables and settings already in ``out_dir``."""
+    try:
+        settings = json.loads((out_dir / "solvers.json").read_text())["settings"]
+    except (OSError, ValueError, KeyError) as err:
+        raise ConfigError(f"--tables-only: no usable {out_dir / 'solvers.json'} ({err}).") from None
+    parts = settings["parts"]
+    mstep_rows = []
+    if "unconstrained" in parts or "constrained" in parts:
+        mstep_rows = read_table(out_dir / "solvers_msteps.csv")
+    plan_rows = []
+    if "plans" in parts:
+        # The table may hold rows of other runs (other seeds, horizons): keep this run's.
+        backends_run = {*settings["backends"], *PLAN_VARIANTS}
+        for r in read_table(out_dir / "solvers_plans.csv"):
+            seeds = settings["cvxpy_seeds"] if r["backend"].startswith("cvxpy/") else settings["seeds"]
+            if (
+                r["kind"] in settings["kinds"]
+                and r["backend"] in backends_run
+                and r["seed"] < seeds
+                and r["iterations"] == settings["iterations"]
+                and (r["horizon"] or None) == settings["horizon"]  # None may read back as ""
+            ):
+                plan_rows.append(r)
+    return _write(out_dir, settings, mstep_rows, plan_rows, progress)
 
 
 def _load() -> str:
@@ -1077,6 +1135,11 @@ def add_arguments(p: Any) -> None:
         help="which parts to run",
     )
     p.add_argument("--cvxpy-solvers", nargs="+", default=None, help="cvxpy solvers (default: all installed)")
+    p.add_argument(
+        "--tables-only",
+        action="store_true",
+        help="only rewrite solvers.md, solvers.json and solvers.png from the raw tables in --out",
+    )
 
 
 def main(args: Any) -> int:
@@ -1111,5 +1174,6 @@ def main(args: Any) -> int:
             progress=not args.quiet,
             resume=not args.fresh,
             command=command,
+            tables_only=bool(getattr(args, "tables_only", False)),
         )
     return 0
