@@ -35,6 +35,7 @@ version in well under a minute.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import dataclasses
 import importlib.metadata
 import json
@@ -44,7 +45,7 @@ import os
 import platform
 import resource
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -149,14 +150,35 @@ def trial(
     raise ConfigError(f"scaling: unknown task {task!r}.")
 
 
+@contextlib.contextmanager
+def _gated_calls() -> Iterator[list[bool]]:
+    """Record, for every E-step the planner runs, whether it was gated (the dense one may run instead)."""
+    import pmht_opt.planner as planner
+
+    real = planner.estep
+    seen: list[bool] = []
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        out = real(*args, **kwargs)
+        seen.append(bool(out.gated))
+        return out
+
+    planner.estep = spy
+    try:
+        yield seen
+    finally:
+        planner.estep = real
+
+
 def _time_plan(sc: Any, solver: str, gate: str, iterations: int) -> dict[str, Any]:
     from pmht_opt.planner import plan_pmht
 
     cfg = _config(solver, gate, iterations)
     base = _rss_mib()
-    started = time.perf_counter()
-    res = plan_pmht(sc, cfg)
-    wall = time.perf_counter() - started
+    with _gated_calls() as seen:
+        started = time.perf_counter()
+        res = plan_pmht(sc, cfg)
+        wall = time.perf_counter() - started
     peak = _rss_mib()
     e = res.history.estep_time
     settled = cfg.anneal.end(sc.r, iterations)
@@ -165,6 +187,8 @@ def _time_plan(sc: Any, solver: str, gate: str, iterations: int) -> dict[str, An
         "estep_s": float(np.sum(e)),
         "estep_settled_s": float(np.sum(e[settled:])),
         "mstep_s": float(np.sum(res.history.mstep_time)),
+        "estep_calls": len(seen),
+        "estep_gated_calls": int(sum(seen)),
         "base_rss_mib": base,
         "peak_rss_mib": peak,
         "distance": float(res.total_distance),
@@ -261,6 +285,8 @@ def summarise_point(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         "estep_s": _median(rows, "estep_s"),
         "estep_settled_s": _median(rows, "estep_settled_s"),
         "mstep_s": _median(rows, "mstep_s"),
+        "estep_calls": _median(rows, "estep_calls"),
+        "estep_gated_calls": _median(rows, "estep_gated_calls"),
         "peak_rss_mib": _median(rows, "peak_rss_mib"),
         "base_rss_mib": _median(rows, "base_rss_mib"),
     }
@@ -380,7 +406,10 @@ def run(
         "target": {
             "seconds": TARGET_SECONDS,
             "gib": TARGET_GIB,
-            "met": bool(
+            # Only the full study's headline is the target's problem.
+            "met": None
+            if (design.headline, it) != (FULL.headline, FULL.iterations)
+            else bool(
                 gated["runs"] > 0
                 and gated["wall_s"] <= TARGET_SECONDS
                 and gated["peak_rss_mib"] <= TARGET_GIB * 1024
@@ -447,6 +476,7 @@ def markdown(summary: Mapping[str, Any]) -> str:
                 "all runs (s)",
                 "E-step (s)",
                 "E-step after annealing (s)",
+                "E-steps gated",
                 "M-step (s)",
                 "peak RSS (MiB)",
             ]
@@ -462,15 +492,17 @@ def markdown(summary: Mapping[str, Any]) -> str:
                     ", ".join(_fmt(w) for w in s["wall_s_all"]),
                     _fmt(s["estep_s"]),
                     _fmt(s["estep_settled_s"]),
+                    f"{_fmt(s['estep_gated_calls'])} of {_fmt(s['estep_calls'])}",
                     _fmt(s["mstep_s"]),
                     _fmt(s["peak_rss_mib"]),
                 ]
             )
         )
-    verdict = "met" if tgt["met"] else "NOT met"
+    verdict = {True: "met", False: "NOT met", None: "not measured (not the target's size)"}[tgt["met"]]
     lines += [
         "",
-        f"Target: <= {tgt['seconds']:g} s and <= {tgt['gib']:g} GiB (gated): {verdict}.",
+        f"Target at N = 1000, T = 2000, M = 10, 100 iterations: <= {tgt['seconds']:g} s and "
+        f"<= {tgt['gib']:g} GiB (gated): {verdict}.",
         "",
         "## Sweeps (slopes of log time / log memory above the baseline against log size)",
         "",
