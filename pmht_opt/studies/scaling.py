@@ -328,6 +328,7 @@ def run(
     out_dir.mkdir(parents=True, exist_ok=True)
     table = out_dir / "scaling.csv"
     it, reps = design.iterations, design.reps
+    load_start = os.getloadavg()
 
     def measure(trials: list[dict[str, Any]], label: str, first: bool = False) -> list[dict[str, Any]]:
         ex = _fresh_child_executor()
@@ -399,7 +400,14 @@ def run(
             "seed": seed,
             "config": "PMHTConfig defaults (annealed, platform prior re-estimated), threads = min(M, cores)",
         },
-        "machine": {"cores": os.cpu_count(), "platform": platform.platform(), **_versions()},
+        "machine": {
+            "cores": os.cpu_count(),
+            "platform": platform.platform(),
+            # Other work on the machine skews the times: the 1-minute load average before and after.
+            "load_average_start": load_start[0],
+            "load_average_end": os.getloadavg()[0],
+            **_versions(),
+        },
         "backends": by_backend,
         "fastest": fastest,
         "headline": headline,
@@ -453,7 +461,9 @@ def markdown(summary: Mapping[str, Any]) -> str:
     lines = [
         f"# Scaling: N = {n}, T = {t}, M = {m}, {d['iterations']} EM iterations",
         "",
-        f"Machine: {machine['cores']} cores, {machine['platform']}. Each plan in a fresh child process; "
+        f"Machine: {machine['cores']} cores, {machine['platform']}; load average "
+        f"{machine['load_average_start']:.2f} at the start, {machine['load_average_end']:.2f} at the end. "
+        "Each plan in a fresh child process; "
         "peak RSS of that child. Medians over the repeats.",
         "",
         "## Backends (gated E-step, one run each)",
