@@ -17,21 +17,14 @@ import argparse
 import json
 import os
 import platform
-import sys
 import time
 from importlib import metadata
 from pathlib import Path
 
-# Python puts this script's directory first on the path, where studies/solvers.py would shadow the
-# top-level ``solvers`` package the library imports: look it up from the repository root instead.
-HERE = Path(__file__).resolve().parent
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != HERE]
-sys.path.insert(0, str(HERE.parent))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from pmht_opt.ordering import solve_ga_tsp, solve_ortools  # noqa: E402
-from pmht_opt.scenario import paper_scenario  # noqa: E402
+from pmht_opt.ordering import solve_ga_tsp, solve_ortools
+from pmht_opt.scenario import paper_scenario
 
 GA_TARGET_S = 1.0
 #: Table 1 of the paper (SPEC section 5): GA-TSP total distance and CPU time per scenario.

@@ -5,16 +5,11 @@ writes studies/results/scaling/ (scaling.csv, scaling.json, scaling.md, scaling.
 """
 
 import argparse
-import sys
 from pathlib import Path
 
-# Python puts this script's directory first on the path, where studies/solvers.py would shadow the
-# top-level ``solvers`` package the library imports: look it up from the repository root instead.
-HERE = Path(__file__).resolve().parent
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != HERE]
-sys.path.insert(0, str(HERE.parent))
+from pmht_opt.studies import scaling
 
-from pmht_opt.studies import scaling  # noqa: E402
+HERE = Path(__file__).resolve().parent
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
