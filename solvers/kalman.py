@@ -93,10 +93,13 @@ def rts_smoother(
 
     # Time-major copies so each step reads contiguous memory.
     yt = np.ascontiguousarray(np.moveaxis(y, 1, 0))
-    active = (weight > 0).T  # (T, B)
+    # A weight whose reciprocal overflows (below ~1e-308) is a measurement of infinite variance, whose
+    # gain is exactly zero: treat it as no measurement instead of dividing by it.
+    present = weight > 1.0 / np.finfo(float).max
+    active = present.T  # (T, B)
     # Measurement covariance scale 1 / weight; 1.0 where there is no measurement (its gain is
     # masked to zero, so the value only has to keep the arithmetic finite).
-    scale = np.divide(1.0, weight, out=np.ones_like(weight), where=weight > 0).T
+    scale = np.divide(1.0, weight, out=np.ones_like(weight), where=present).T
 
     mf = np.empty((T + 1, B, n, K))
     Pf = np.empty((T + 1, B, n, n))
