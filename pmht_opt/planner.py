@@ -84,9 +84,10 @@ class PMHTConfig:
         computation runs whenever the gate would keep more than a tenth of the triples (a wide ``r``,
         early in annealing). ``"auto"`` stays dense with ``update_time_prior=True``: the gated
         ``pi^tau[n, t]`` is zero, not tiny, where no triple of ``(n, t)`` is kept, and the EM can
-        revive tiny time priors; a numeric ``G`` gates anyway. On by default: measured by
-        ``pmht-opt study scaling`` (``studies/results/scaling``), never much slower and several times
-        faster for large ``N T M``.
+        revive tiny time priors; a numeric ``G`` gates anyway. On by default, by measurement
+        (``pmht-opt study scaling``, ``studies/results/scaling``): N = 1000, T = 2000, M = 10 plans
+        take 33 s instead of 51 s (kalman; E-steps after annealing 3.4 times faster), every sweep
+        point is faster, and where the gate does not pay it costs nothing (dense).
     """
 
     solver: str = "clarabel"
