@@ -19,6 +19,15 @@ from pmht_opt.scenario import Scenario
 DEFAULT_RADIUS = 0.3
 
 
+def excursion(points: np.ndarray, bounds: tuple[float, float, float, float]) -> float:
+    """Largest distance of any point ``(..., 2)`` outside the box ``(xmin, xmax, ymin, ymax)``."""
+    xmin, xmax, ymin, ymax = bounds
+    p = np.asarray(points, dtype=float)
+    dx = np.maximum(np.maximum(xmin - p[..., 0], p[..., 0] - xmax), 0.0)
+    dy = np.maximum(np.maximum(ymin - p[..., 1], p[..., 1] - ymax), 0.0)
+    return float(np.max(np.hypot(dx, dy)))
+
+
 @dataclass
 class IterationHistory:
     """Per-iteration record of an EM run.
@@ -157,11 +166,9 @@ class PlanResult:
 
     def max_excursion(self, bounds: tuple[float, float, float, float] | None = None) -> float:
         """Largest distance of any position outside ``bounds`` (default: the scenario's area)."""
-        xmin, xmax, ymin, ymax = bounds if bounds is not None else self.scenario.bounds  # type: ignore[misc]
-        p = self.positions
-        dx = np.maximum(np.maximum(xmin - p[..., 0], p[..., 0] - xmax), 0.0)
-        dy = np.maximum(np.maximum(ymin - p[..., 1], p[..., 1] - ymax), 0.0)
-        return float(np.max(np.hypot(dx, dy)))
+        box = bounds if bounds is not None else self.scenario.bounds
+        assert box is not None
+        return excursion(self.positions, box)
 
     def constraint_reports(self) -> list[ConstraintReport]:
         """How each constraint holds on the returned paths, measured on the exact geometry."""

@@ -8,7 +8,6 @@ than 1 unit (scenario B starts at x = -1, exactly 1 unit outside, which therefor
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ from pmht_opt.anneal import Anneal
 from pmht_opt.montecarlo import run_trials, summarise
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.scenario import paper_scenario
+from pmht_opt.studies.common import EXCURSION_LIMIT, write_summary
 
 #: Configurations compared: name -> (anneal, update_time_prior). The first four are the issue's grid;
 #: the rest vary the schedule so the default is chosen among more than one annealed candidate.
@@ -30,7 +30,6 @@ CONFIGS: dict[str, tuple[Anneal | None, bool]] = {
     "annealed-0.1x30": (Anneal(0.1, 30), False),
 }
 GRID = ("plain", "plain+time-prior", "annealed", "annealed+time-prior")
-EXCURSION_LIMIT = 1.0
 
 
 def trial(kind: str, seed: int, config: str, solver: str = "clarabel") -> dict[str, Any]:
@@ -114,11 +113,7 @@ def run(
         resume=resume,
     )
     table = summary(rows)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "anneal_summary.json").write_text(json.dumps(table, indent=1) + "\n")
-    text = markdown(table)
-    (out_dir / "anneal.md").write_text(text + "\n")
-    print(text)
+    write_summary(out_dir, "anneal", table, markdown(table))
     return table
 
 

@@ -27,7 +27,6 @@ time includes the ordering it smooths, as in the paper.
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -37,8 +36,9 @@ import numpy as np
 
 from pmht_opt.montecarlo import run_trials, summarise
 from pmht_opt.planner import PMHTConfig, plan_pmht
-from pmht_opt.result import DEFAULT_RADIUS
+from pmht_opt.result import DEFAULT_RADIUS, excursion
 from pmht_opt.scenario import Scenario, paper_scenario
+from pmht_opt.studies.common import EXCURSION_LIMIT, write_summary
 
 METHODS: dict[str, str] = {
     "ga": "GA-TSP",
@@ -58,7 +58,7 @@ PAPER: dict[str, dict[str, tuple[float, float]]] = {
 }
 PAPER_COLUMN = {"ga": "ga", "ga-smoothed": "ga-smoothed", "pmht-paper": "pmht", "pmht": "pmht"}
 VISIT_RADIUS = 0.1
-EXCURSION_LIMIT = 1.0
+AREA = (0.0, 10.0, 0.0, 10.0)
 FIGURE_SEED = 0
 
 
@@ -105,7 +105,7 @@ def trial(kind: str, seed: int, method: str) -> dict[str, Any]:
         row = {
             "distance": float(out.total_distance),
             "coverage": 1.0,
-            "excursion": _excursion(sc, np.vstack(lines)),
+            "excursion": excursion(np.vstack(lines), sc.bounds or AREA),
             "locales_per_platform": [len(r) for r in out.routes],
         }
     else:
@@ -127,13 +127,6 @@ def trial(kind: str, seed: int, method: str) -> dict[str, Any]:
 
 def _rounded(line: np.ndarray) -> list[list[float]]:
     return np.round(np.asarray(line, dtype=float), 3).tolist()
-
-
-def _excursion(sc: Scenario, points: np.ndarray) -> float:
-    xmin, xmax, ymin, ymax = sc.bounds if sc.bounds is not None else (0.0, 10.0, 0.0, 10.0)
-    dx = np.maximum(np.maximum(xmin - points[:, 0], points[:, 0] - xmax), 0.0)
-    dy = np.maximum(np.maximum(ymin - points[:, 1], points[:, 1] - ymax), 0.0)
-    return float(np.max(np.hypot(dx, dy)))
 
 
 # ------------------------------------------------------------------ tables
@@ -301,14 +294,8 @@ def run(
         resume=resume,
     )
     table = summary(rows)
-    (out_dir / "table1_summary.json").write_text(json.dumps(table, indent=1) + "\n")
-    text = markdown(table)
-    (out_dir / "table1.md").write_text(
-        f"Table 1 over {trials} trials per scenario (seeds 0..{trials - 1}); the paper: 100 trials.\n\n"
-        + text
-        + "\n"
-    )
-    print(text)
+    header = f"Table 1 over {trials} trials per scenario (seeds 0..{trials - 1}); the paper: 100 trials.\n\n"
+    write_summary(out_dir, "table1", table, markdown(table), header)
     if with_figures:
         for path in figures(out_dir, rows, list(methods)):
             print(f"figure: {path}")
