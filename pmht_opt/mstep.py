@@ -18,8 +18,8 @@ plan; an iteration changes only the diagonal of ``P`` and ``q``.
 Backends:
 
 * ``clarabel``, ``osqp``: that QP through :mod:`solvers`, updated in place.
-* ``cvxpy``: the same problem written in cvxpy with the weights as parameters (DPP), so it is
-  compiled once; any installed cvxpy solver can be chosen.
+* ``cvxpy``: the same problem written in cvxpy, any installed cvxpy solver; compiled once with the
+  weights as parameters (DPP) when unconstrained, compiled per iteration when constrained.
 * ``kalman``: a Rauch-Tung-Striebel smoother on the synthetic measurements ``ztilde = WZ / W`` with
   covariance ``R / W`` (eqs 15-16), run per axis; the reference for the others.
 """
@@ -597,15 +597,20 @@ def check_solution(sol: solvers.QPSolution, accept_inaccurate: bool, platform: i
 
 
 class CvxpyMStep(MStep):
-    """The M-step written in cvxpy, parametrised by the weights so it is compiled once (DPP).
+    """The M-step written in cvxpy; any installed cvxpy solver can be chosen.
 
     ``settings`` may hold ``cvxpy_solver`` (default ``"CLARABEL"``); the rest goes to
     ``cvxpy.Problem.solve``. The variables are exposed as :attr:`states` (one ``(T, 6)`` cvxpy variable
     per platform, rows ``t = 1..T``) and :attr:`noise`.
 
-    Constraint blocks become cvxpy rows whose coefficients are parameters too, so a block whose
-    structure is unchanged from the last iteration (speed limits, obstacle half-planes) costs no
-    recompilation; :class:`~pmht_opt.constraints.CvxpyConstraint` s are built once with the problem.
+    Without constraints the weights are parameters and the problem is compiled once (DPP). With
+    constraints it is compiled again at every solve, the weights and the iteration's constraint rows
+    entering as constants (``ignore_dpp``): cvxpy's parametrised compilation reorders every
+    second-order cone through a tensor with one column per (variable, parameter) pair, which for
+    scenario A (T = 500, M = 4) and one speed limit took 44 s and 12 GB, and for plan_smoothed's
+    visit cones 70 s, whereas a plain compilation takes a fraction of a second per iteration
+    (measured: 4 iterations of A with six constraint kinds in 1.4 s).
+    :class:`~pmht_opt.constraints.CvxpyConstraint` s are built once with the variables.
     """
 
     name: ClassVar[str] = "cvxpy"
@@ -628,9 +633,13 @@ class CvxpyMStep(MStep):
             self.cvxpy_solver = check_solver_name(str(opts.pop("cvxpy_solver", DEFAULT_SOLVER)))
         except solvers.UnknownSolverError as err:
             raise UnknownSolverError(str(err)) from err
+        #: Whether the problem is compiled once with the weights as parameters (no constraints).
+        self.dpp = not self.constraints
+        if not self.dpp:
+            opts.setdefault("ignore_dpp", True)
         #: Option sets tried in turn until one gives an optimal (not inaccurate) answer.
         self.option_chain: list[dict[str, Any]] = [opts]
-        if self.cvxpy_solver == "CLARABEL" and not self.constraints:
+        if self.cvxpy_solver == "CLARABEL" and self.dpp:
             chain = [{**extra, **opts} for extra in CVXPY_CLARABEL_CHAIN]
             self.option_chain = [o for i, o in enumerate(chain) if o not in chain[:i]]
         self.options = self.option_chain[0]
@@ -659,42 +668,17 @@ class CvxpyMStep(MStep):
                 cost += penalty
         self._base_cost = cost
         self._base_constraints = rows
-        self._key: tuple[object, ...] | None = None
-        self._params: list[tuple[Any, Any] | None] = []
         self.problem = cp.Problem(cp.Minimize(cost), rows)
 
-    def _rebuild(self, imposed: list[Imposed]) -> None:
-        """A new cvxpy problem for blocks of a new structure; their numbers are parameters."""
+    def _build(self, imposed: list[Imposed]) -> None:
+        """The problem with this iteration's constraint rows written in as constants."""
         import cvxpy as cp
 
         cost = self._base_cost
         constraints: list[Any] = list(self._base_constraints)
-        self._params = []
         for item in imposed:
             blk = item.block
-            G = blk.G.tocsr()
-            G.sort_indices()
-            k = G.shape[0]
-            z = self._stacked[blk.platform]
-            if not item.dynamic:
-                # Rows that never change (limits, bounds) are constants: cheapest to compile.
-                self._params.append(None)
-                e = blk.h - G @ z
-            else:
-                # Row i of G z written as sum_j coeff_j[i] * z[col_j[i]] over "slots" j (the i-th
-                # row's j-th stored entry; short rows padded with zero coefficients), so the numbers
-                # are parameters (no recompilation while the pattern holds) and each term is an
-                # elementwise product, which cvxpy's DPP compiles compactly.
-                counts = np.diff(G.indptr)
-                slots = int(counts.max()) if k else 0
-                rhs = cp.Parameter(k)
-                coeffs = [cp.Parameter(k) for _ in range(slots)]
-                self._params.append((coeffs, rhs))
-                Gz = 0
-                for j in range(slots):
-                    col = np.where(counts > j, G.indices[np.minimum(G.indptr[:-1] + j, G.nnz - 1)], 0)
-                    Gz = Gz + cp.multiply(coeffs[j], z[col])
-                e = rhs - Gz
+            e = blk.h - sp.csr_matrix(blk.G) @ self._stacked[blk.platform]
             slack = cp.Variable(blk.units, nonneg=True) if item.soft else None
             if slack is not None:
                 cost += item.weight * cp.sum(slack)
@@ -703,8 +687,6 @@ class CvxpyMStep(MStep):
             elif blk.kind == "nonneg":
                 constraints += [e >= 0] if slack is None else [e + slack >= 0]
             else:
-                # Slices, not a reshape: cvxpy's DPP expands a reshaped parametrised expression into
-                # a dense tensor (measured: 5 GiB for one speed limit on a 500-step horizon).
                 head = e[0 :: blk.dim] if slack is None else e[0 :: blk.dim] + slack
                 tail = cp.vstack([e[c :: blk.dim] for c in range(1, blk.dim)])
                 constraints.append(cp.SOC(head, tail, axis=0))
@@ -713,34 +695,8 @@ class CvxpyMStep(MStep):
     def solve(self, data: MStepData) -> MStepOutput:
         from solvers.cvxpy_ import solve_cvxpy_problem
 
-        imposed = [i for items in self.imposed(data.ctx).values() for i in items]
-        key = tuple(
-            (
-                i.block.platform,
-                i.block.kind,
-                i.block.dim,
-                i.soft,
-                i.weight,
-                i.block.G.shape,
-                i.block.G.indptr.tobytes(),
-                i.block.G.indices.tobytes(),
-            )
-            for i in imposed
-        )
-        if key != self._key:
-            self._rebuild(imposed)
-            self._key = key
-        for item, params in zip(imposed, self._params, strict=True):
-            if params is None:
-                continue
-            coeffs, rhs = params
-            G = item.block.G.tocsr()
-            G.sort_indices()
-            counts = np.diff(G.indptr)
-            for j, coeff in enumerate(coeffs):
-                pos = np.minimum(G.indptr[:-1] + j, G.nnz - 1)
-                coeff.value = np.where(counts > j, G.data[pos], 0.0)
-            rhs.value = item.block.h
+        if not self.dpp:
+            self._build([i for items in self.imposed(data.ctx).values() for i in items])
         self._sqrt_w.value = np.sqrt(np.maximum(data.W, 0.0) / data.r)
         self._lin.value = (data.WZ / data.r).reshape(self.T, 2 * self.M)
         iters = 0

@@ -2,7 +2,11 @@
 
 Settings: ``cvxpy_solver`` (a cvxpy solver name, default ``"CLARABEL"``); every other option is passed
 to ``cvxpy.Problem.solve``. The problem is rebuilt when ``P`` or ``A`` change; ``q`` and ``b`` are
-cvxpy parameters. This backend is for generality and cross-checks, not speed.
+cvxpy parameters, so a problem of zero and nonnegative cones is compiled once (DPP). A problem with
+second-order cones is compiled at every solve with ``q`` and ``b`` as constants (``ignore_dpp``):
+cvxpy's parametrised compilation reorders each cone through a tensor with a column per (variable,
+parameter) pair, which on problems of tens of thousands of variables costs minutes and gigabytes.
+This backend is for generality and cross-checks, not speed.
 """
 
 from __future__ import annotations
@@ -82,6 +86,8 @@ class CvxpySession(QPSession):
     def _setup(self) -> None:
         opts = dict(self.settings)
         self._solver_name = check_solver_name(opts.pop("cvxpy_solver", DEFAULT_SOLVER))
+        if self.problem.has_soc:
+            opts.setdefault("ignore_dpp", True)
         self._options = opts
         self._build()
 

@@ -18,7 +18,7 @@ from pmht_opt.smoothed import sub_batches
 
 #: Visit distance accepted beyond the radius: solver tolerances (see test_constraints).
 TOL = {"clarabel": 1e-6, "cvxpy": 1e-6, "osqp": 1e-4}
-ITERATIONS = {"clarabel": 8, "osqp": 4, "cvxpy": 2}
+ITERATIONS = {"clarabel": 8, "osqp": 4, "cvxpy": 8}
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,7 @@ def tours() -> dict:
     return out
 
 
-@pytest.mark.parametrize("solver", ["clarabel", "osqp"])
+@pytest.mark.parametrize("solver", ["clarabel", "osqp", "cvxpy"])
 @pytest.mark.parametrize("kind", ["A", "B", "C"])
 def test_smoothed_visits_every_locale_in_tour_order(kind: str, solver: str, tours: dict) -> None:
     sc, tour = tours[kind]
@@ -47,15 +47,6 @@ def test_smoothed_visits_every_locale_in_tour_order(kind: str, solver: str, tour
         assert np.all(dist <= 0.1 + TOL[solver])
     rep = res.constraint_reports()[-1]
     assert rep.details["visits_met"] == sc.n_locales and rep.details["times_in_sub_batch"] == sc.n_locales
-
-
-def test_smoothed_cvxpy_short_horizon() -> None:
-    # cvxpy compiles the whole joint problem; a 120-step horizon keeps the test short.
-    sc = paper_scenario("A", seed=3, horizon=120)
-    routes = [list(range(k, 100, 4)) for k in range(4)]
-    res = plan_smoothed(sc, routes, PMHTConfig(solver="cvxpy", max_iter=2))
-    rep = res.constraint_reports()[-1]
-    assert rep.max_violation <= 1e-6 and rep.details["times_in_sub_batch"] == sc.n_locales
 
 
 def test_sub_batches_partition_each_horizon_in_order() -> None:
