@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from pmht_opt import (
-    Anneal,
     AccelLimit,
+    Anneal,
     AreaBounds,
     CircleObstacle,
     ConfigError,
@@ -243,9 +243,9 @@ def test_soft_mode_matches_hard_when_feasible() -> None:
 
 def test_start_inside_obstacle_or_outside_area_is_a_scenario_error() -> None:
     sc = _small()
-    with pytest.raises(ScenarioError, match="platform 0 starts .* inside CircleObstacle"):
+    with pytest.raises(ScenarioError, match=r"platform 0 starts .* inside CircleObstacle"):
         plan_pmht(sc, PMHTConfig(max_iter=1, constraints=[CircleObstacle((1.2, 1.0), 0.5)]))
-    with pytest.raises(ScenarioError, match="platform 1 starts .* outside AreaBounds"):
+    with pytest.raises(ScenarioError, match=r"platform 1 starts .* outside AreaBounds"):
         plan_pmht(sc, PMHTConfig(max_iter=1, constraints=[AreaBounds(0, 5, 0, 10)]))
 
 

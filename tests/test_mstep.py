@@ -63,7 +63,7 @@ def test_single_weighted_target_is_reached_closely() -> None:
 
 
 def test_unknown_backend_lists_available(scenario_a: po.Scenario) -> None:
-    with pytest.raises(po.UnknownSolverError, match="available: .*kalman"):
+    with pytest.raises(po.UnknownSolverError, match=r"available: .*kalman"):
         make_mstep(scenario_a, "gurobi")
 
 

@@ -115,7 +115,7 @@ def test_max_iterations_is_not_a_solution() -> None:
 
 def test_unknown_solver_lists_available() -> None:
     prob, _ = eq_ineq_problem()
-    with pytest.raises(solvers.UnknownSolverError, match="available: .*clarabel"):
+    with pytest.raises(solvers.UnknownSolverError, match=r"available: .*clarabel"):
         solvers.solve_qp(prob, "gurobi-free")
 
 
