@@ -66,12 +66,21 @@ BACKEND_DEFAULTS: dict[str, dict[str, Any]] = {
 }
 
 
-#: Settings for one retry when a solve fails without an infeasibility verdict. Clarabel without
-#: iterative refinement (the fast default above) can stop with 'InsufficientProgress' on
-#: ill-scaled constrained M-steps (seen with VisitAll while annealing, r = 0.3); with refinement it
-#: solves them.
-FALLBACK_SETTINGS: dict[str, dict[str, Any]] = {
-    "clarabel": {"iterative_refinement_enable": True},
+#: Settings for retries, tried in turn, when a solve fails without an infeasibility verdict (each a
+#: fresh setup; a set that touches a setting the caller chose is skipped).
+#:
+#: * Clarabel without iterative refinement (the fast default above) can stop with
+#:   'InsufficientProgress' on ill-scaled constrained M-steps (seen with VisitAll while annealing,
+#:   r = 0.3); with refinement it solves them.
+#: * OSQP with adaptive rho can stall on the M-step where VisitAll is first imposed: the visits force
+#:   a manoeuvre (process noise up to 110 against 1.3 unconstrained, positions moved 1.7 units) and
+#:   ADMM was still 1.8 units from the answer after 50 000 iterations (B seeds 0 and 2, 2 of 12 full
+#:   runs on A, B, C seeds 0-3). A fixed rho = 100 solved both in about 20 000 iterations with
+#:   polishing, to 2e-4 of Clarabel (B seed 0, a degenerate optimum: equal objective) and 3e-6;
+#:   rho = 30 solved both too, more slowly.
+FALLBACK_SETTINGS: dict[str, tuple[dict[str, Any], ...]] = {
+    "clarabel": ({"iterative_refinement_enable": True},),
+    "osqp": ({"rho": 100.0, "adaptive_rho": False}, {"rho": 30.0, "adaptive_rho": False}),
 }
 
 #: Option sets for Clarabel through cvxpy on the unconstrained M-step, tried in turn while the answer
@@ -313,7 +322,7 @@ class PlatformQP:
         session_class: type[solvers.QPSession],
         settings: dict[str, Any],
         constrained_settings: dict[str, Any] | None = None,
-        fallback_settings: dict[str, Any] | None = None,
+        fallback_settings: tuple[dict[str, Any], ...] = (),
     ) -> None:
         self.layout = lay = QPLayout(1, horizon)
         self.session_class = session_class
@@ -415,19 +424,26 @@ class PlatformQP:
         return self._fallback(self.session.solve(), q)
 
     def _fallback(self, sol: solvers.QPSolution, q: np.ndarray) -> solvers.QPSolution:
-        """Re-solve once with the backend's slower, more robust settings if the fast ones failed.
+        """Re-solve with the backend's slower, more robust settings, in turn, if the fast ones failed.
 
         Only for failures that are not a verdict on the problem (not infeasible): e.g. Clarabel's
-        ``InsufficientProgress`` without iterative refinement.
+        ``InsufficientProgress`` without iterative refinement (see :data:`FALLBACK_SETTINGS`). The
+        answer kept records which set solved it in ``info["fallback"]``; if none did, the first
+        failure is returned.
         """
-        if self.fallback_settings is None or sol.usable(False) or sol.status in solvers.INFEASIBLE:
+        if not self.fallback_settings or sol.usable(False) or sol.status in solvers.INFEASIBLE:
             return sol
         A, b, cones = self._constraints(self.extra)
         n_slack = 0 if self.extra is None else self.extra.n_slack
         problem = solvers.QPProblem(P=self._P(n_slack), q=q, A=A, b=b, cones=cones)
         options = self.settings if self.extra is None else self.constrained_settings
-        retry = self.session_class(problem, **{**options, **self.fallback_settings}).solve()
-        return retry if retry.usable(False) else sol
+        for extra in self.fallback_settings:
+            retry = self.session_class(problem, **{**options, **extra}).solve()
+            if retry.usable(False):
+                retry.info["fallback"] = extra
+                retry.info["first_status"] = sol.raw_status
+                return retry
+        return sol
 
     def slacks(self, x: np.ndarray) -> np.ndarray:
         """The soft constraints' slack values in a solution vector."""
@@ -464,9 +480,8 @@ class QPMStep(MStep):
         self.conic = session_class.supports_soc
         self.options = {**BACKEND_DEFAULTS.get(solver, {}), **self.settings}
         self.constrained_options = {**CONSTRAINED_DEFAULTS.get(solver, {}), **self.settings}
-        fallback = FALLBACK_SETTINGS.get(solver)
-        if fallback is not None and set(fallback) & set(self.settings):
-            fallback = None  # the caller chose these settings; do not second-guess them
+        # Sets touching a setting the caller chose are skipped: do not second-guess the caller.
+        fallback = tuple(f for f in FALLBACK_SETTINGS.get(solver, ()) if not set(f) & set(self.settings))
         self.blocks = [
             PlatformQP(
                 self.model,
