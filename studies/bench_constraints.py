@@ -35,7 +35,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--backends", nargs="*", default=["clarabel", "osqp", "cvxpy"])
-    parser.add_argument("--smoothed-backends", nargs="*", default=["clarabel", "osqp"])
+    parser.add_argument("--smoothed-backends", nargs="*", default=["clarabel", "osqp", "cvxpy"])
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "bench_constraints.json")
     args = parser.parse_args()
 
@@ -45,8 +45,9 @@ def main() -> None:
     cons = [po.SpeedLimit(vmax), po.AreaBounds(0, 10, 0, 10)]
     constrained = {}
     for backend in args.backends:
-        reps = 1 if backend == "cvxpy" else args.repeats
-        walls, res = _time(lambda b=backend: po.plan_pmht(sc, po.PMHTConfig(solver=b, constraints=cons)), reps)
+        walls, res = _time(
+            lambda b=backend: po.plan_pmht(sc, po.PMHTConfig(solver=b, constraints=cons)), args.repeats
+        )
         assert isinstance(res, po.PlanResult)
         constrained[backend] = {
             "median_s": float(np.median(walls)),
@@ -85,7 +86,8 @@ def main() -> None:
     args.out.write_text(
         json.dumps(
             {
-                "machine": {"cpus": os.cpu_count()},
+                "machine": {"cpus": os.cpu_count(), "load_average": os.getloadavg()},
+                "repeats": args.repeats,
                 "speed_limit": vmax,
                 "constrained_A_speed_area": constrained,
                 "target_s": 5.0,
