@@ -534,6 +534,7 @@ class QPMStep(MStep):
             states=self._with_start(body),
             iterations=int(sum(s.iterations for s in sols)),
             status=status,
+            info={"fallbacks": sum("fallback" in s.info for s in sols)},
         )
 
     def _diagnose(

@@ -285,6 +285,7 @@ def _run_em(
     e_times: list[float] = []
     m_times: list[float] = []
     solver_iters: list[int] = []
+    fallbacks: list[int] = []
     snapshots: dict[int, np.ndarray] = {}
     if 0 in cfg.snapshots:
         snapshots[0] = states[:, :, POS].copy()
@@ -318,6 +319,7 @@ def _run_em(
         out = mstep.solve(MStepData(W=es.W, WZ=es.WZ, r=r, ctx=ctx))
         m_times.append(time.perf_counter() - t0)
         solver_iters.append(out.iterations)
+        fallbacks.append(int(out.info.get("fallbacks", 0)))
         states = out.states
         t0 = time.perf_counter()
         es, obj = run_estep(states, r)
@@ -344,6 +346,7 @@ def _run_em(
         mstep_time=np.array(m_times),
         solver_iterations=np.array(solver_iters, dtype=int),
         r=np.array(r_used),
+        fallbacks=np.array(fallbacks, dtype=int),
     )
     return PlanResult(
         scenario=scenario,

@@ -39,6 +39,9 @@ class IterationHistory:
     ``r[i]`` is the fitting penalty ``objective[i]`` is computed with: iteration ``i``'s ``r`` under an
     annealing schedule (``r[0] = r[1]``), otherwise the scenario's ``r`` throughout. EM guarantees
     ``objective[i] >= objective[i-1]`` (without constraints) whenever ``r[i] == r[i-1]``.
+
+    ``fallbacks[i]`` counts the platforms whose M-step in iteration ``i + 1`` failed with the backend's
+    fast settings and was solved by one of its fallback settings (``pmht_opt.mstep.FALLBACK_SETTINGS``).
     """
 
     objective: np.ndarray
@@ -46,6 +49,7 @@ class IterationHistory:
     mstep_time: np.ndarray
     solver_iterations: np.ndarray
     r: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    fallbacks: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
 
     @property
     def monotone_from(self) -> int:
@@ -200,6 +204,7 @@ class PlanResult:
             "final_objective": float(self.history.objective[-1]),
             "wall_time": float(self.wall_time),
             "solver": self.solver,
+            "solver_fallbacks": int(np.sum(self.history.fallbacks)),
             "anneal": self.anneal,
             "constraints": {
                 r.name: {

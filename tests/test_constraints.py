@@ -86,14 +86,7 @@ def test_motion_area_obstacles_terminal_hold(kind: str, solver: str, speeds: dic
     assert res.max_violation <= tol
 
 
-# OSQP (ADMM at 1e-5) does not reliably converge on VisitAll's polygons: known limitation, reported.
-_OSQP_VISITS = pytest.mark.xfail(
-    reason="OSQP (ADMM) fails on VisitAll in some runs (iteration limit or inaccurate; 5 of 6 full annealed runs solved)", raises=SolverError, strict=False
-)
-VISIT_CASES = [pytest.param(k, s, marks=_OSQP_VISITS) if s == "osqp" else (k, s) for k, s in CASES]
-
-
-@pytest.mark.parametrize(("kind", "solver"), VISIT_CASES)
+@pytest.mark.parametrize(("kind", "solver"), CASES)
 def test_visit_all_guarantees_coverage(kind: str, solver: str) -> None:
     sc = paper_scenario(kind, seed=1)
     # A short annealing schedule; VisitAll's warm-up counts from its end (settled r), so the visits
@@ -187,9 +180,7 @@ def test_constraints_never_improve_the_objective(solver: str) -> None:
     free = make_mstep(sc, solver)
     ctx = ConstraintContext(scenario=sc, states=states, estep=es, iteration=1, max_iter=1, conic=free.conic)
     j_free = mstep_objective(sc.model, free.solve(data).states, data)
-    kinds = [[SpeedLimit(0.1)], [AreaBounds(0, 10, 0, 10), AccelLimit(0.01)]]
-    if solver != "osqp":
-        kinds.append([VisitAll(0.2, warmup=0)])
+    kinds = [[SpeedLimit(0.1)], [AreaBounds(0, 10, 0, 10), AccelLimit(0.01)], [VisitAll(0.2, warmup=0)]]
     for cons in kinds:
         ms = make_mstep(sc, solver, constraints=tuple(cons))
         ctx.conic = ms.conic

@@ -95,3 +95,39 @@ def test_inaccurate_solutions_are_refused_unless_accepted(scenario_a: po.Scenari
     lenient = make_mstep(scenario_a, "osqp", {"max_iter": 50, "eps_abs": 1e-3, "eps_rel": 1e-3})
     # Loose tolerances are a caller's choice: OSQP stands behind them, so the solve is accepted.
     assert lenient.solve(data).states.shape == (4, 501, 6)
+
+
+def test_fallback_settings_give_way_to_the_callers(scenario_a: po.Scenario) -> None:
+    from pmht_opt.mstep import FALLBACK_SETTINGS
+
+    assert make_mstep(scenario_a, "osqp").blocks[0].fallback_settings == FALLBACK_SETTINGS["osqp"]
+    # A caller who picks rho has chosen what the fallbacks would change: none is tried.
+    assert make_mstep(scenario_a, "osqp", {"rho": 5.0}).blocks[0].fallback_settings == ()
+    only = make_mstep(scenario_a, "clarabel", {"max_iter": 50}).blocks[0].fallback_settings
+    assert only == FALLBACK_SETTINGS["clarabel"]
+
+
+def test_failed_solves_go_through_the_fallback_chain_in_order(scenario_a: po.Scenario) -> None:
+    data = random_weights(scenario_a, np.random.default_rng(0), 0.3)
+    mstep = make_mstep(scenario_a, "osqp", {"max_iter": 20})
+    chain = ({"max_iter": 30}, {"max_iter": 50_000})  # the first still fails, the second solves
+    for block in mstep.blocks:
+        block.fallback_settings = chain
+    out = mstep.solve(data)
+    active = int(np.sum(np.any(data.W > 0, axis=0)))
+    assert out.info["fallbacks"] == active >= 1
+    sol = mstep.blocks[0]._fallback(mstep.blocks[0].session.solve(), mstep.blocks[0].session.problem.q)
+    assert sol.info["fallback"] == chain[1] and "maximum iterations" in sol.info["first_status"]
+    ref = make_mstep(scenario_a, "kalman").solve(data)
+    assert np.max(np.abs(out.states - ref.states)) <= POSITION_TOL
+    # No set solves: the first failure is what the caller sees.
+    for block in mstep.blocks:
+        block.fallback_settings = ({"max_iter": 30},)
+    with pytest.raises(po.SolverError, match="M-step solve failed"):
+        mstep.solve(data)
+
+
+def test_a_plan_records_fallback_solves(scenario_a: po.Scenario) -> None:
+    res = po.plan_pmht(scenario_a, po.PMHTConfig(solver="osqp", max_iter=2, anneal=None))
+    assert res.history.fallbacks.shape == (2,) and res.history.fallbacks.dtype.kind == "i"
+    assert res.metrics()["solver_fallbacks"] == int(res.history.fallbacks.sum())
