@@ -428,8 +428,9 @@ class PlatformQP:
 
         Only for failures that are not a verdict on the problem (not infeasible): e.g. Clarabel's
         ``InsufficientProgress`` without iterative refinement (see :data:`FALLBACK_SETTINGS`). The
-        answer kept records which set solved it in ``info["fallback"]``; if none did, the first
-        failure is returned.
+        set that solves is kept for this platform's later solves (its session, warm, replaces the
+        failed one), so a run does not pay for the failing settings every iteration. The answer
+        records the set in ``info["fallback"]``; if none solves, the first failure is returned.
         """
         if not self.fallback_settings or sol.usable(False) or sol.status in solvers.INFEASIBLE:
             return sol
@@ -438,10 +439,19 @@ class PlatformQP:
         problem = solvers.QPProblem(P=self._P(n_slack), q=q, A=A, b=b, cones=cones)
         options = self.settings if self.extra is None else self.constrained_settings
         for extra in self.fallback_settings:
-            retry = self.session_class(problem, **{**options, **extra}).solve()
+            if extra.items() <= options.items():
+                continue  # already in use: it is what just failed
+            merged = {**options, **extra}
+            session = self.session_class(problem, **merged)
+            retry = session.solve()
             if retry.usable(False):
                 retry.info["fallback"] = extra
                 retry.info["first_status"] = sol.raw_status
+                self.problem, self.session = problem, session
+                if self.extra is None:
+                    self.settings = merged
+                else:
+                    self.constrained_settings = merged
                 return retry
         return sol
 
