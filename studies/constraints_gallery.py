@@ -31,7 +31,7 @@ def main() -> None:
         "unconstrained": po.PMHTConfig(solver=args.solver),
         "speed_limit": po.PMHTConfig(solver=args.solver, constraints=[po.SpeedLimit(vmax)]),
         "obstacles": po.PMHTConfig(solver=args.solver, constraints=obstacles),
-        "visit_all": po.PMHTConfig(solver=args.solver, constraints=[po.VisitAll(0.1, warmup=30)]),
+        "visit_all": po.PMHTConfig(solver=args.solver, constraints=[po.VisitAll(0.1)]),
         "area_bounds_time_prior": po.PMHTConfig(
             solver=args.solver, update_time_prior=True, constraints=[po.AreaBounds(0, 10, 0, 10)]
         ),
