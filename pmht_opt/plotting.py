@@ -30,11 +30,15 @@ def draw_paths(
     positions: np.ndarray | Sequence[np.ndarray],
     title: str | None = None,
     assignment: np.ndarray | None = None,
+    constraints: Sequence[Any] = (),
 ) -> None:
     """Draw locales, starts and one polyline per platform on the matplotlib axes ``ax``.
 
-    ``positions`` is ``(M, T+1, 2)`` paths or a list of ``(K_m, 2)`` polylines (e.g. tours).
+    ``positions`` is ``(M, T+1, 2)`` paths or a list of ``(K_m, 2)`` polylines (e.g. tours);
+    ``constraints`` draw their shapes (obstacles, area bounds) underneath.
     """
+    for con in constraints:
+        con.draw(ax)
     colours = [f"C{i % 10}" for i in range(len(positions))]
     if scenario.bounds is not None:
         xmin, xmax, ymin, ymax = scenario.bounds
@@ -66,12 +70,13 @@ def plot_paths(
     path: str | Path,
     title: str | None = None,
     assignment: np.ndarray | None = None,
+    constraints: Sequence[Any] = (),
 ) -> Path:
     """Write one figure of paths to ``path`` and return it."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 5.5))
     try:
-        draw_paths(ax, scenario, positions, title=title, assignment=assignment)
+        draw_paths(ax, scenario, positions, title=title, assignment=assignment, constraints=constraints)
         fig.tight_layout()
         out = Path(path)
         out.parent.mkdir(parents=True, exist_ok=True)

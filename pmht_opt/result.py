@@ -227,6 +227,7 @@ class PlanResult:
             path,
             title=title if title is not None else self._default_title(),
             assignment=self.assignment if show_assignment else None,
+            constraints=self.constraints,
         )
 
     def _default_title(self) -> str:

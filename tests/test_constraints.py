@@ -18,7 +18,6 @@ from pmht_opt import (
     PolygonObstacle,
     Scenario,
     ScenarioError,
-    SolverError,
     SpeedLimit,
     Terminal,
     VisitAll,

@@ -76,3 +76,34 @@ def test_plot_writes_a_png(tmp_path: Path) -> None:
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
     metrics = res.metrics()
     assert set(metrics) >= {"total_distance", "coverage", "crossings", "max_speed", "max_acceleration"}
+
+
+def test_plot_draws_obstacles_and_area_bounds(tmp_path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle, Polygon, Rectangle
+
+    from pmht_opt.plotting import draw_paths
+
+    sc = po.paper_scenario("A", seed=1, horizon=60)
+    cons = [
+        po.CircleObstacle((3.0, 6.5), 0.8),
+        po.PolygonObstacle([(6, 4), (7.5, 4), (7.5, 6), (6, 6)]),
+        po.AreaBounds(0, 10, 0, 10),
+        po.SpeedLimit(0.5),  # no shape: draws nothing
+    ]
+    res = po.plan_pmht(sc, po.PMHTConfig(max_iter=2, constraints=cons))
+    fig, ax = plt.subplots()
+    try:
+        draw_paths(ax, sc, res.positions, constraints=res.constraints)
+        circles = [p for p in ax.patches if isinstance(p, Circle)]
+        polygons = [p for p in ax.patches if type(p) is Polygon]
+        dashed = [p for p in ax.patches if isinstance(p, Rectangle) and p.get_linestyle() == "--"]
+        assert len(circles) == 1 and circles[0].radius == 0.8
+        assert len(polygons) == 1 and np.allclose(polygons[0].get_xy()[:4].min(axis=0), [6, 4])
+        assert len(dashed) == 1 and dashed[0].get_width() == 10
+    finally:
+        plt.close(fig)
+    assert res.plot(tmp_path / "obstacles.png").stat().st_size > 10_000

@@ -43,6 +43,12 @@ class AreaBounds(Constraint):
     def name(self) -> str:
         return "AreaBounds({:g}, {:g}, {:g}, {:g})".format(*self.box)
 
+    def draw(self, ax: Any) -> None:
+        from matplotlib.patches import Rectangle
+
+        xmin, xmax, ymin, ymax = self.box
+        ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, ls="--", lw=1.2, ec="C3"))
+
     def check_scenario(self, scenario: Scenario) -> None:
         super().check_scenario(scenario)
         xmin, xmax, ymin, ymax = self.box

@@ -282,6 +282,13 @@ class Constraint(abc.ABC):
         conic = replace(ctx, conic=True)
         return self._report(self._block_residuals(self.blocks(conic), states))
 
+    def draw(self, ax: Any) -> None:  # noqa: B027 - most kinds have no shape to draw
+        """Draw this constraint's geometry (keep-out zones, bounds) on matplotlib axes ``ax``.
+
+        Called by :meth:`~pmht_opt.result.PlanResult.plot`; kinds without a shape in the plane draw
+        nothing.
+        """
+
     # ------------------------------------------------------------------ helpers for kinds
 
     def _block_residuals(

@@ -125,6 +125,12 @@ class CircleObstacle(_Obstacle):
             normals = np.where(degenerate[:, None], away[None, :], rel / norm[:, None])
         return normals, normals @ self.center + self.radius
 
+    def draw(self, ax: Any) -> None:
+        from matplotlib.patches import Circle
+
+        disc = Circle(tuple(self.center), self.radius, fc="0.85", ec="0.3", lw=0.8, hatch="//", zorder=0)
+        ax.add_patch(disc)
+
     def penetration(self, points: np.ndarray) -> np.ndarray:
         rel = np.asarray(points) - self.center
         return np.maximum(self.radius - np.hypot(rel[..., 0], rel[..., 1]), 0.0)
@@ -182,6 +188,11 @@ class PolygonObstacle(_Obstacle):
     def name(self) -> str:
         c = self.vertices.mean(axis=0)
         return f"PolygonObstacle({self.vertices.shape[0]} corners around ({c[0]:.3g}, {c[1]:.3g}))"
+
+    def draw(self, ax: Any) -> None:
+        from matplotlib.patches import Polygon
+
+        ax.add_patch(Polygon(self.vertices, closed=True, fc="0.85", ec="0.3", lw=0.8, hatch="//", zorder=0))
 
     def _signed(self, points: np.ndarray) -> np.ndarray:
         return np.asarray(points) @ self.normals.T - self.offsets  # (..., K): > 0 outside that edge
