@@ -478,7 +478,7 @@ def constrained_rows(
         solver, settings = backend_spec(label)
         if label == "cvxpy/CLARABEL":
             # Then the same problem at the reference's tolerances (how well the reference itself is
-            # determined), on the same compiled problem: compiling it again would cost ~25 s.
+            # determined), on the same backend object with its options tightened.
             once = _reusing(qp(solver, settings))
             runs.append((label, once, None, None, False))
             runs.append(("cvxpy/CLARABEL (tight)", once, None, _tighten, True))
@@ -741,12 +741,13 @@ def markdown(
         f"every time alike). QP backends on one thread. Times are medians of {repeats} solves "
         "of the same M-step (each after re-solving the previous iteration's M-step, so warm starts are "
         "as inside a plan); 'first solve' is the previous iteration's M-step solved right after setup, "
-        "including cvxpy's compilation. Iterations: the sum over the platforms' QPs for clarabel and "
-        "osqp, the one stacked problem for cvxpy, none for kalman (a direct smoother). Objective gap: "
-        "(J - J_ref) / |J_ref| of the M-step cost J (`pmht_opt.mstep.mstep_objective`). Position "
+        "including cvxpy's compilation (cvxpy compiles a constrained problem at every solve, so its "
+        "constrained times include compilation). Iterations: the sum over the platforms' QPs for clarabel"
+        " and osqp, the one stacked problem for cvxpy, none for kalman (a direct smoother). Objective "
+        "gap: (J - J_ref) / |J_ref| of the M-step cost J (`pmht_opt.mstep.mstep_objective`). Position "
         "difference: largest |x - x_ref| or |y - y_ref| over platforms and steps. Every problem here is "
-        "feasible (the unconstrained ones trivially, the constrained ones solved by the reference), so an "
-        "'infeasible' verdict is a solver failure. 'n/a': the solver cannot take the problem class "
+        "feasible (the unconstrained ones trivially, the constrained ones solved by the reference), so an"
+        " 'infeasible' verdict is a solver failure. 'n/a': the solver cannot take the problem class "
         "(an LP-only solver, or a QP-only solver given second-order cones).",
         f"Reproduce: `{settings['command']}`.",
         "",
