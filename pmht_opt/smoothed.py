@@ -114,8 +114,9 @@ class TourVisits(VisitAll):
         """``G`` with explicit zeros on the position columns of every step of each locale's window.
 
         The visit step moves inside the window from one iteration to the next; with the whole window
-        stored, the rows keep one sparsity pattern, so the backends update numbers instead of setting
-        up (or, for cvxpy, recompiling) the problem again.
+        stored, the rows keep one sparsity pattern, so the QP backends update numbers instead of setting
+        up the problem again (cvxpy compiles a constrained problem every iteration anyway). The stored
+        zeros make Clarabel's KKT system denser: measured 5-25% slower M-steps on scenario A.
         """
         rows, cols = [], []
         for i, (lo, hi) in enumerate(windows):
