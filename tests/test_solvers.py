@@ -209,21 +209,3 @@ def test_rts_rejects_bad_shapes() -> None:
             np.zeros((1, 3, 1, 1)),
             np.ones((2, 3)),
         )
-
-
-@pytest.mark.parametrize("backend", BACKENDS)
-def test_warm_start_from_the_answer_and_bad_vectors(backend: str) -> None:
-    prob, x_ref = eq_ineq_problem()
-    session = solvers.open_session(prob, backend)
-    cold = session.solve()
-    assert cold.ok
-    fresh = solvers.open_session(prob, backend)
-    fresh.warm_start(cold.x, cold.y)  # ignored by backends without warm starts
-    warm = fresh.solve()
-    assert warm.ok and np.allclose(warm.x, x_ref, atol=TOL[backend])
-    if fresh.supports_warm_start:
-        assert warm.iterations < cold.iterations
-    with pytest.raises(solvers.UpdateError, match="x has 1 values"):
-        fresh.warm_start(np.zeros(1))
-    with pytest.raises(solvers.UpdateError, match="non-finite"):
-        fresh.warm_start(np.full(prob.n, np.nan))
