@@ -427,11 +427,10 @@ class PlatformQP:
         """Re-solve with the backend's slower, more robust settings, in turn, if the fast ones failed.
 
         Only for failures that are not a verdict on the problem (not infeasible): e.g. Clarabel's
-        ``InsufficientProgress`` without iterative refinement (see :data:`FALLBACK_SETTINGS`). A
-        backend that warm-starts (OSQP) keeps its fast settings and starts the next solve from the
-        answer; one that does not (Clarabel) keeps the set that solved for this platform's later
-        solves, so a run does not pay for the failing settings every iteration. The answer records
-        the set in ``info["fallback"]``; if none solves, the first failure is returned.
+        ``InsufficientProgress`` without iterative refinement (see :data:`FALLBACK_SETTINGS`). The
+        set that solves is kept for this platform's later solves (its session, warm, replaces the
+        failed one), so a run does not pay for the failing settings every iteration. The answer
+        records the set in ``info["fallback"]``; if none solves, the first failure is returned.
         """
         if not self.fallback_settings or sol.usable(False) or sol.status in solvers.INFEASIBLE:
             return sol
@@ -448,16 +447,11 @@ class PlatformQP:
             if retry.usable(False):
                 retry.info["fallback"] = extra
                 retry.info["first_status"] = sol.raw_status
-                assert retry.x is not None and self.session is not None
-                if self.session.supports_warm_start:
-                    # Back to the fast settings, from the answer: the next M-step is close to it.
-                    self.session.warm_start(retry.x, retry.y)
+                self.problem, self.session = problem, session
+                if self.extra is None:
+                    self.settings = merged
                 else:
-                    self.problem, self.session = problem, session
-                    if self.extra is None:
-                        self.settings = merged
-                    else:
-                        self.constrained_settings = merged
+                    self.constrained_settings = merged
                 return retry
         return sol
 

@@ -53,7 +53,6 @@ class OSQPSession(QPSession):
 
     name: ClassVar[str] = "osqp"
     supports_soc: ClassVar[bool] = False
-    supports_warm_start: ClassVar[bool] = True
 
     def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
         prob = self.problem
@@ -100,12 +99,6 @@ class OSQPSession(QPSession):
             kwargs["Ax"] = A_data
         if kwargs:
             self._solver.update(**kwargs)
-
-    def _warm_start(self, x: np.ndarray, y: np.ndarray | None) -> None:
-        if y is None:
-            self._solver.warm_start(x=x)
-        else:
-            self._solver.warm_start(x=x, y=y)
 
     def _solve(self) -> QPSolution:
         t0 = time.perf_counter()

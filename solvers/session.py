@@ -30,8 +30,6 @@ class QPSession(abc.ABC):
     name: ClassVar[str] = ""
     #: Whether the backend accepts second-order cones.
     supports_soc: ClassVar[bool] = False
-    #: Whether :meth:`warm_start` sets the next solve's starting point.
-    supports_warm_start: ClassVar[bool] = False
 
     def __init__(self, problem: QPProblem, **settings: Any) -> None:
         self.problem = problem
@@ -55,20 +53,6 @@ class QPSession(abc.ABC):
     @abc.abstractmethod
     def _solve(self) -> QPSolution:
         """Solve the current problem."""
-
-    def warm_start(self, x: np.ndarray, y: np.ndarray | None = None) -> None:
-        """Start the next solve from primal ``x`` (and dual ``y``) where the backend can.
-
-        Backends without warm starts (:attr:`supports_warm_start` false) ignore it.
-        """
-        xs = _checked("x", x, self.problem.n)
-        ys = _checked("y", y, self.problem.m)
-        if self.supports_warm_start:
-            assert xs is not None
-            self._warm_start(xs, ys)
-
-    def _warm_start(self, x: np.ndarray, y: np.ndarray | None) -> None:  # noqa: B027
-        """Backend hook for :meth:`warm_start` (validated vectors)."""
 
     def update(
         self,
