@@ -429,7 +429,9 @@ class PlatformQP:
         Only for failures that are not a verdict on the problem (not infeasible): e.g. Clarabel's
         ``InsufficientProgress`` without iterative refinement (see :data:`FALLBACK_SETTINGS`). The
         set that solves is kept for this platform's later solves (its session, warm, replaces the
-        failed one), so a run does not pay for the failing settings every iteration. The answer
+        failed one), so a run does not pay for the failing settings every iteration. (Measured on
+        OSQP with VisitAll, B seed 2: going back to the fast settings, warm-started from the
+        fallback's answer, failed 8 more times and took 229 s; keeping the set took 156 s.) The answer
         records the set in ``info["fallback"]``; if none solves, the first failure is returned.
         """
         if not self.fallback_settings or sol.usable(False) or sol.status in solvers.INFEASIBLE:
