@@ -33,6 +33,10 @@ if TYPE_CHECKING:
     from pmht_opt.scenario import Scenario
 
 
+#: How keep-out zones are drawn in figures: hatched grey, under the paths.
+KEEP_OUT_STYLE: dict[str, Any] = {"fc": "0.85", "ec": "0.3", "lw": 0.8, "hatch": "//", "zorder": 0}
+
+
 class _Obstacle(Constraint):
     """Shared logic: linearised half-planes per step, exact penetration and segment checks."""
 
@@ -128,8 +132,7 @@ class CircleObstacle(_Obstacle):
     def draw(self, ax: Any) -> None:
         from matplotlib.patches import Circle
 
-        disc = Circle(tuple(self.center), self.radius, fc="0.85", ec="0.3", lw=0.8, hatch="//", zorder=0)
-        ax.add_patch(disc)
+        ax.add_patch(Circle(tuple(self.center), self.radius, **KEEP_OUT_STYLE))
 
     def penetration(self, points: np.ndarray) -> np.ndarray:
         rel = np.asarray(points) - self.center
@@ -192,7 +195,7 @@ class PolygonObstacle(_Obstacle):
     def draw(self, ax: Any) -> None:
         from matplotlib.patches import Polygon
 
-        ax.add_patch(Polygon(self.vertices, closed=True, fc="0.85", ec="0.3", lw=0.8, hatch="//", zorder=0))
+        ax.add_patch(Polygon(self.vertices, closed=True, **KEEP_OUT_STYLE))
 
     def _signed(self, points: np.ndarray) -> np.ndarray:
         return np.asarray(points) @ self.normals.T - self.offsets  # (..., K): > 0 outside that edge
