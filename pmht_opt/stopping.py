@@ -1,0 +1,168 @@
+"""Stopping criteria for the iterative methods: the EM planner and the GA ordering.
+
+A criterion is any callable ``criterion(progress) -> bool`` that says whether to stop after the
+iteration ``progress`` describes. Criteria are small frozen dataclasses, passed in rather than hard-wired,
+and hold no state of their own: everything they judge is in the :class:`Progress` record, so one
+criterion object can serve any number of runs. Combine them with :class:`AnyOf`.
+
+Scores are "lower is better": the GA reports its best tour cost, the EM planner the negative of its
+objective.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+from pmht_opt.exceptions import ConfigError
+
+
+@dataclass(frozen=True)
+class Progress:
+    """What a stopping criterion sees after an iteration.
+
+    Attributes
+    ----------
+    iteration
+        Iterations completed so far (1 after the first).
+    scores
+        The score before the first iteration (index 0) and after each one since; lower is better.
+    elapsed
+        Seconds since the run started.
+    settled
+        Whether the method is in its final regime (the EM: annealing over and every constraint
+        imposed; always true for methods without such phases). Convergence tests only count settled
+        iterations.
+    """
+
+    iteration: int
+    scores: Sequence[float]
+    elapsed: float = 0.0
+    settled: bool = True
+
+
+@runtime_checkable
+class StoppingCriterion(Protocol):
+    """``criterion(progress) -> bool``: stop after the iteration ``progress`` describes."""
+
+    def __call__(self, progress: Progress) -> bool:
+        """Whether to stop now."""
+        ...
+
+
+def _positive_int(owner: str, value: object) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ConfigError(f"{owner}: expected a positive integer, got {value!r}.")
+    return value
+
+
+def _non_negative(owner: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{owner}: expected a finite non-negative number, got {value!r}.")
+    out = float(value)
+    if not math.isfinite(out) or out < 0:
+        raise ConfigError(f"{owner}: expected a finite non-negative number, got {value!r}.")
+    return out
+
+
+@dataclass(frozen=True)
+class MaxIterations:
+    """Stop after ``limit`` iterations."""
+
+    limit: int
+
+    def __post_init__(self) -> None:
+        _positive_int("MaxIterations.limit", self.limit)
+
+    def __call__(self, progress: Progress) -> bool:
+        return progress.iteration >= self.limit
+
+
+@dataclass(frozen=True)
+class ObjectiveTolerance:
+    """Stop once a settled iteration changes the score by at most ``rtol`` relative to the previous one.
+
+    ``rtol = 0`` never stops (a change of exactly zero is not taken as convergence, so a run with
+    ``rtol = 0`` always runs to its other criteria).
+    """
+
+    rtol: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "rtol", _non_negative("ObjectiveTolerance.rtol", self.rtol))
+
+    def __call__(self, progress: Progress) -> bool:
+        scores = progress.scores
+        if self.rtol <= 0 or not progress.settled or len(scores) < 2:
+            return False
+        prev, last = scores[-2], scores[-1]
+        return abs(last - prev) <= self.rtol * max(abs(prev), 1e-300)
+
+
+@dataclass(frozen=True)
+class TimeBudget:
+    """Stop once ``seconds`` of wall-clock time have passed.
+
+    Wall-clock limits make a run's result depend on the machine's load: use them for interactive
+    work, never in a study whose results are recorded.
+    """
+
+    seconds: float
+
+    def __post_init__(self) -> None:
+        value = _non_negative("TimeBudget.seconds", self.seconds)
+        if value == 0:
+            raise ConfigError("TimeBudget.seconds: expected a positive number of seconds, got 0.")
+        object.__setattr__(self, "seconds", value)
+
+    def __call__(self, progress: Progress) -> bool:
+        return progress.elapsed >= self.seconds
+
+
+@dataclass(frozen=True)
+class NoImprovement:
+    """Stop when the best score has not fallen for ``iterations`` settled iterations."""
+
+    iterations: int
+
+    def __post_init__(self) -> None:
+        _positive_int("NoImprovement.iterations", self.iterations)
+
+    def __call__(self, progress: Progress) -> bool:
+        scores = progress.scores
+        k = self.iterations
+        if not progress.settled or len(scores) <= k:
+            return False
+        return min(scores[-k:]) >= min(scores[:-k])
+
+
+@dataclass(frozen=True)
+class AnyOf:
+    """Stop as soon as any of ``criteria`` says so."""
+
+    criteria: tuple[StoppingCriterion, ...]
+
+    def __post_init__(self) -> None:
+        crit = tuple(self.criteria)
+        for c in crit:
+            if not callable(c):
+                raise ConfigError(f"AnyOf: expected stopping criteria, got {type(c).__name__}.")
+        object.__setattr__(self, "criteria", crit)
+
+    def __call__(self, progress: Progress) -> bool:
+        return any(c(progress) for c in self.criteria)
+
+
+def iteration_limit(criterion: StoppingCriterion) -> int | None:
+    """The smallest :class:`MaxIterations` limit inside ``criterion`` (``None`` if it has none).
+
+    Methods that plan ahead (an annealing schedule, a batch of random draws) use it as the run's length.
+    """
+    if isinstance(criterion, MaxIterations):
+        return criterion.limit
+    if isinstance(criterion, AnyOf):
+        limits = [lim for c in criterion.criteria if (lim := iteration_limit(c)) is not None]
+        return min(limits) if limits else None
+    return None
