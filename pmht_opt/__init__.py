@@ -16,6 +16,8 @@ from pmht_opt.constraints import (
     Terminal,
     VisitAll,
 )
+from pmht_opt.em import EMCallbacks, EMRun, IterationRecord
+from pmht_opt.estep import EStepSummary
 from pmht_opt.exceptions import (
     ConfigError,
     InfeasibleError,
@@ -26,37 +28,59 @@ from pmht_opt.exceptions import (
     UnknownSolverError,
 )
 from pmht_opt.model import MotionModel
-from pmht_opt.mstep import available_backends
+from pmht_opt.mstep import available_backends, solve_mstep
 from pmht_opt.ordering import TourResult, order_locales, solve_ga_tsp, solve_ortools, tour_distance
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario, paper_scenario
+from pmht_opt.schedule import Schedule
 from pmht_opt.smoothed import plan_smoothed
+from pmht_opt.stopping import (
+    AnyOf,
+    MaxIterations,
+    NoImprovement,
+    ObjectiveTolerance,
+    Progress,
+    StoppingCriterion,
+    TimeBudget,
+)
 
 __version__ = "0.1.0"
 
 __all__ = [
     "AccelLimit",
     "Anneal",
+    "AnyOf",
     "AreaBounds",
     "CircleObstacle",
     "ConfigError",
     "Constraint",
     "ConstraintReport",
     "CvxpyConstraint",
+    "EMCallbacks",
+    "EMRun",
+    "EStepSummary",
     "InfeasibleError",
     "IterationHistory",
+    "IterationRecord",
+    "MaxIterations",
     "MissingDependencyError",
     "MotionModel",
+    "NoImprovement",
+    "ObjectiveTolerance",
     "PMHTConfig",
     "PlanResult",
     "PmhtOptError",
     "PolygonObstacle",
+    "Progress",
     "Scenario",
     "ScenarioError",
+    "Schedule",
     "SolverError",
     "SpeedLimit",
+    "StoppingCriterion",
     "Terminal",
+    "TimeBudget",
     "TourResult",
     "UnknownSolverError",
     "VisitAll",
@@ -67,6 +91,7 @@ __all__ = [
     "plan_pmht",
     "plan_smoothed",
     "solve_ga_tsp",
+    "solve_mstep",
     "solve_ortools",
     "tour_distance",
 ]

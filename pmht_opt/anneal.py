@@ -1,9 +1,9 @@
-"""Deterministic annealing of the fitting penalty ``r`` (issue 5).
+"""Deterministic annealing of the fitting penalty ``r``.
 
 With the sharp penalty of the paper (``r = 0.01``) the first E-steps lock every locale onto its nearest
-platform and time; platforms left without locales then fly off under constant acceleration (SPEC section
-6). Annealing runs the first iterations with a wide penalty, so every locale pulls on every nearby path,
-and shrinks it to the scenario's ``r``.
+platform and time; platforms left without locales then fly off under constant acceleration
+(docs/model.md section 6). Annealing runs the first iterations with a wide penalty, so every locale
+pulls on every nearby path, and shrinks it to the scenario's ``r``.
 
 Iteration ``i`` (``1..max_iter``) of the EM uses one value ``r_i`` for both of its steps: the E-step that
 weighs the locales against the current paths and the M-step that fits the paths to those weights. A
@@ -124,12 +124,6 @@ class Anneal:
         full[-1] = r
         out[:n] = full[:n]
         return out
-
-    def end(self, r: float, max_iter: int) -> int:
-        """The first iteration from which every iteration uses exactly ``r`` (``max_iter + 1`` if none)."""
-        vals = self.values(r, max_iter)
-        off = np.nonzero(vals != r)[0]
-        return int(off[-1]) + 2 if off.size else 1
 
     def describe(self) -> str:
         """A short human-readable description."""

@@ -11,7 +11,7 @@ from typing import Any
 
 from pmht_opt.anneal import Anneal
 from pmht_opt.exceptions import ConfigError, PmhtOptError
-from pmht_opt.mstep import MSTEP_BACKENDS, available_backends
+from pmht_opt.mstep import BACKENDS, available_backends
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.progress import ProgressBar
 from pmht_opt.result import PlanResult
@@ -19,7 +19,7 @@ from pmht_opt.scenario import Scenario, paper_scenario
 
 
 def _add_planner_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--solver", default="clarabel", choices=sorted(MSTEP_BACKENDS), help="M-step backend")
+    p.add_argument("--solver", default="clarabel", choices=sorted(BACKENDS), help="M-step backend")
     p.add_argument("--iterations", type=int, default=100, help="maximum EM iterations (default 100)")
     p.add_argument("--tol", type=float, default=0.0, help="relative objective change to stop at (0: never)")
     p.add_argument(
@@ -142,8 +142,9 @@ def _cmd_scenario(args: argparse.Namespace) -> int:
 
 def _cmd_solvers(args: argparse.Namespace) -> int:
     installed = set(available_backends())
-    for name, package in MSTEP_BACKENDS.items():
-        state = "available" if name in installed else f"missing (pip install {package})"
+    for name, backend in BACKENDS.items():
+        hint = backend.spec.install_hint if backend.spec is not None else ""
+        state = "available" if name in installed else f"missing ({hint})"
         print(f"{name:<9} {state}")
     return 0
 

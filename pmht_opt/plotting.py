@@ -7,12 +7,21 @@ pmht_opt never touches a display.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import singledispatch
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from pmht_opt.constraints.area import AreaBounds
+from pmht_opt.constraints.base import Constraint
+from pmht_opt.constraints.obstacles import CircleObstacle, PolygonObstacle
 from pmht_opt.scenario import Scenario
+
+#: How keep-out zones are drawn: hatched grey, under the paths.
+KEEP_OUT_STYLE: dict[str, Any] = {"fc": "0.85", "ec": "0.3", "lw": 0.8, "hatch": "//", "zorder": 0}
+#: How area bounds are drawn: a dashed red box.
+BOUNDS_STYLE: dict[str, Any] = {"fill": False, "ls": "--", "lw": 1.2, "ec": "C3"}
 
 
 def _pyplot() -> Any:
@@ -22,6 +31,36 @@ def _pyplot() -> Any:
     import matplotlib.pyplot as plt
 
     return plt
+
+
+@singledispatch
+def draw_constraint(con: Constraint, ax: Any) -> None:
+    """Draw a constraint's shape in the plane on matplotlib axes ``ax``; kinds without one draw nothing.
+
+    Register a drawing for a new kind with ``@draw_constraint.register``.
+    """
+
+
+@draw_constraint.register
+def _(con: AreaBounds, ax: Any) -> None:
+    from matplotlib.patches import Rectangle
+
+    xmin, xmax, ymin, ymax = con.box
+    ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, **BOUNDS_STYLE))
+
+
+@draw_constraint.register
+def _(con: CircleObstacle, ax: Any) -> None:
+    from matplotlib.patches import Circle
+
+    ax.add_patch(Circle(tuple(con.center), con.radius, **KEEP_OUT_STYLE))
+
+
+@draw_constraint.register
+def _(con: PolygonObstacle, ax: Any) -> None:
+    from matplotlib.patches import Polygon
+
+    ax.add_patch(Polygon(con.vertices, closed=True, **KEEP_OUT_STYLE))
 
 
 def draw_paths(
@@ -38,7 +77,7 @@ def draw_paths(
     ``constraints`` draw their shapes (obstacles, area bounds) underneath.
     """
     for con in constraints:
-        con.draw(ax)
+        draw_constraint(con, ax)
     colours = [f"C{i % 10}" for i in range(len(positions))]
     if scenario.bounds is not None:
         xmin, xmax, ymin, ymax = scenario.bounds

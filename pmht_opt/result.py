@@ -1,4 +1,4 @@
-"""Plan results and the metrics computed from them (SPEC section 5 and what the paper lacked)."""
+"""Plan results and the metrics computed from them (docs/model.md section 11)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,9 @@ from typing import Any
 
 import numpy as np
 
-from pmht_opt.constraints.base import Constraint, ConstraintContext, ConstraintReport
+import solvers
+from pmht_opt.constraints.base import Constraint, ConstraintReport
+from pmht_opt.estep import EStepSummary
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.geometry import count_crossings, point_polyline_distance
 from pmht_opt.model import ACC, POS, VEL
@@ -38,10 +40,14 @@ class IterationHistory:
 
     ``r[i]`` is the fitting penalty ``objective[i]`` is computed with: iteration ``i``'s ``r`` under an
     annealing schedule (``r[0] = r[1]``), otherwise the scenario's ``r`` throughout. EM guarantees
-    ``objective[i] >= objective[i-1]`` (without constraints) whenever ``r[i] == r[i-1]``.
+    ``objective[i] >= objective[i-1]`` (without constraints) whenever ``r[i] == r[i-1]``, that is from
+    index :attr:`settled` on.
 
     ``fallbacks[i]`` counts the platforms whose M-step in iteration ``i + 1`` failed with the backend's
-    fast settings and was solved by one of its fallback settings (``pmht_opt.mstep.FALLBACK_SETTINGS``).
+    fast settings and was solved by one of its retry settings (:mod:`pmht_opt.mstep.tuning`);
+    ``mstep_status[i]`` is that M-step's status; ``estep_gated[i]`` says whether the E-step after
+    iteration ``i`` (``0``: the initial one) was gated. ``stop_reason`` names the stopping criterion
+    that ended the run.
     """
 
     objective: np.ndarray
@@ -50,10 +56,14 @@ class IterationHistory:
     solver_iterations: np.ndarray
     r: np.ndarray = field(default_factory=lambda: np.zeros(0))
     fallbacks: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    mstep_status: tuple[solvers.Status, ...] = ()
+    estep_gated: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    stop_reason: str = ""
 
     @property
-    def monotone_from(self) -> int:
-        """First index from which ``r`` no longer changes (the objective is monotone from there on)."""
+    def settled(self) -> int:
+        """First index from which ``r`` no longer changes: annealing is over and, without
+        constraints, the objective never decreases from there on (0 for plain EM)."""
         if self.r.size == 0:
             return 0
         changed = np.nonzero(self.r[1:] != self.r[:-1])[0]
@@ -83,9 +93,12 @@ class PlanResult:
         Per-iteration objective, timings and solver iterations.
     constraints
         The constraints the plan was made under.
-    constraint_context
-        The context of the last M-step (its linearisation point and E-step), against which
-        :meth:`constraint_reports` judges the constraints whose rows depend on the iterate.
+    reports
+        How each constraint holds on the returned paths (:meth:`constraint_reports`), measured on the
+        exact geometry against the rows of the last M-step.
+    estep
+        The final E-step, compactly (:class:`~pmht_opt.estep.EStepSummary`): sparse weights and each
+        locale's platform probabilities.
     anneal
         Description of the annealing schedule of ``r`` the plan was made with (``"none"``).
     """
@@ -102,7 +115,8 @@ class PlanResult:
     snapshots: dict[int, np.ndarray] = field(default_factory=dict)
     extras: dict[str, Any] = field(default_factory=dict)
     constraints: tuple[Constraint, ...] = ()
-    constraint_context: ConstraintContext | None = None
+    reports: tuple[ConstraintReport, ...] = ()
+    estep: EStepSummary | None = None
     anneal: str = "none"
 
     @property
@@ -176,9 +190,7 @@ class PlanResult:
 
     def constraint_reports(self) -> list[ConstraintReport]:
         """How each constraint holds on the returned paths, measured on the exact geometry."""
-        if not self.constraints or self.constraint_context is None:
-            return []
-        return [c.violation(self.states, self.constraint_context) for c in self.constraints]
+        return list(self.reports)
 
     @property
     def max_violation(self) -> float:

@@ -1,4 +1,4 @@
-"""GA-TSP PMHT smoothed: a tour turned into hard ordering constraints (SPEC section 4).
+"""GA-TSP PMHT smoothed: a tour turned into hard ordering constraints (docs/model.md section 10).
 
 The paper feeds a GA tour to the PMHT planner through its priors: ``pi^k[n, m] = 1`` for the tour's
 platform, and ``pi^tau[n, .]`` uniform on the locale's *sub-batch* (the platform's horizon cut into one
@@ -16,20 +16,16 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 
-from pmht_opt.constraints.base import (
-    DEFAULT_SIDES,
-    Block,
-    ConstraintContext,
-    ConstraintReport,
-    positive_number,
-)
+from pmht_opt.constraints.base import ConstraintContext, ConstraintReport
+from pmht_opt.constraints.blocks import DEFAULT_SIDES, Block
+from pmht_opt.constraints.params import positive_number
 from pmht_opt.constraints.visits import VisitAll
+from pmht_opt.em import EMCallbacks, EMRun
 from pmht_opt.exceptions import ConfigError
-from pmht_opt.model import POS, PX, PY, STATE_DIM, VEL
+from pmht_opt.model import POS, STATE_DIM, VEL
 from pmht_opt.ordering.tour import TourResult, check_routes
-from pmht_opt.planner import PMHTConfig, ProgressCallback, plan_pmht
+from pmht_opt.planner import PMHTConfig, ProgressCallback
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario
 
@@ -105,38 +101,9 @@ class TourVisits(VisitAll):
     def blocks(self, ctx: ConstraintContext) -> list[Block]:
         out = super().blocks(ctx)
         for blk in out:
-            mine = np.flatnonzero(self.platform == blk.platform)
-            blk.G = self._fixed_pattern(blk.G, self.windows[mine], blk.h.shape[0] // mine.size)
+            # The visit step moves inside the locale's window from one iteration to the next.
+            blk.span = self.windows[np.flatnonzero(self.platform == blk.platform)]
         return out
-
-    @staticmethod
-    def _fixed_pattern(G: sp.csr_matrix, windows: np.ndarray, rows_per: int) -> sp.csr_matrix:
-        """``G`` with explicit zeros on the position columns of every step of each locale's window.
-
-        The visit step moves inside the window from one iteration to the next; with the whole window
-        stored, the rows keep one sparsity pattern, so the QP backends update numbers instead of setting
-        up the problem again (cvxpy compiles a constrained problem every iteration anyway). The stored
-        zeros make Clarabel's KKT system denser: measured 5-25% slower M-steps on scenario A.
-        """
-        rows, cols = [], []
-        for i, (lo, hi) in enumerate(windows):
-            steps = np.arange(lo, hi + 1)
-            for k in range(rows_per):
-                for comp in (PX, PY):
-                    rows.append(np.full(steps.size, i * rows_per + k))
-                    cols.append(STATE_DIM * (steps - 1) + comp)
-        r = np.concatenate(rows)
-        c = np.concatenate(cols)
-        coo = G.tocoo()
-        both = sp.csr_matrix(
-            (
-                np.concatenate([coo.data, np.zeros(r.size)]),
-                (np.concatenate([coo.row, r]), np.concatenate([coo.col, c])),
-            ),
-            shape=G.shape,
-        )
-        both.sum_duplicates()
-        return both
 
     def violation(self, states: np.ndarray, ctx: ConstraintContext) -> ConstraintReport:
         report = super().violation(states, ctx)
@@ -197,7 +164,7 @@ def plan_smoothed(
         How each platform's horizon is cut into sub-batches: ``"equal"`` (the paper) or
         ``"distance"`` (proportional to the legs of the tour).
     sides
-        Sides of the inner polygon standing in for the visit disc on OSQP.
+        Sides of the inner polygon standing in for the visit disc on a backend without cones.
     callback
         Called as ``callback(iteration, objective)`` after every iteration.
 
@@ -236,16 +203,23 @@ def plan_smoothed(
         time_prior[n, lo - 1 : hi] = 1.0
     platform_prior = np.zeros((N, M))
     platform_prior[np.arange(N), platform] = 1.0
-    result = plan_pmht(
+    callbacks = None
+    if callback is not None:
+        callbacks = EMCallbacks(
+            after_iteration=lambda run, record: callback(record.iteration, record.objective)
+        )
+    with EMRun(
         scenario,
         run_cfg,
         time_prior=time_prior,
         platform_prior=platform_prior,
-        callback=callback,
         initial_paths=_polyline_start(scenario, routes, windows),
-    )
-    assert result.constraint_context is not None
+        callbacks=callbacks,
+    ) as run:
+        result = run.run()
+        ctx = run.last_context
+    assert ctx is not None
     result.assignment = platform
-    result.visit_time = visits.visits(result.constraint_context)[1]
+    result.visit_time = visits.visits(ctx)[1]
     result.extras.update({"routes": routes, "sub_batches": windows, "visit_radius": visits.radius})
     return result

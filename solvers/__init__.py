@@ -40,23 +40,38 @@ from solvers.problem import (
     QPSolution,
     Status,
     Zero,
+    cone_violation,
 )
-from solvers.session import QPSession
+from solvers.retry import NO_RETRY, RetryChain, retry_failed
+from solvers.session import QPSession, Update
 
 
 @dataclass(frozen=True)
 class BackendSpec:
-    """Where a backend lives and what it needs installed."""
+    """Where a backend lives, what it needs installed and which cones it accepts."""
 
     name: str
     module: str
     cls: str
     package: str
     install_hint: str
+    cones: frozenset[str] = frozenset({"zero", "nonneg", "soc"})
+
+    @property
+    def installed(self) -> bool:
+        """Whether the backend's package can be imported (checked now, not at import)."""
+        return importlib.util.find_spec(self.package) is not None
 
 
 BACKENDS: dict[str, BackendSpec] = {
-    "osqp": BackendSpec("osqp", "solvers.osqp_", "OSQPSession", "osqp", "pip install 'osqp>=1.1'"),
+    "osqp": BackendSpec(
+        "osqp",
+        "solvers.osqp_",
+        "OSQPSession",
+        "osqp",
+        "pip install 'osqp>=1.1'",
+        frozenset({"zero", "nonneg"}),
+    ),
     "clarabel": BackendSpec(
         "clarabel", "solvers.clarabel_", "ClarabelSession", "clarabel", "pip install clarabel"
     ),
@@ -66,7 +81,20 @@ BACKENDS: dict[str, BackendSpec] = {
 
 def available_solvers() -> list[str]:
     """Names of the backends whose package is installed (checked now, not at import)."""
-    return [name for name, spec in BACKENDS.items() if importlib.util.find_spec(spec.package)]
+    return [name for name, spec in BACKENDS.items() if spec.installed]
+
+
+def unknown_solver_message(name: object, available: list[str], what: str = "solver") -> str:
+    """The one wording of "no such solver": what was asked for and what is available."""
+    return f"unknown {what} {name!r}; available: {', '.join(available) or 'none'}."
+
+
+def missing_package_message(spec: BackendSpec, available: list[str], what: str = "solver") -> str:
+    """The one wording of "known, but its package is not installed"."""
+    return (
+        f"{what} {spec.name!r} needs the package {spec.package!r}, which is not installed "
+        f"({spec.install_hint}); available: {', '.join(available) or 'none'}."
+    )
 
 
 def get_session_class(name: str) -> type[QPSession]:
@@ -80,14 +108,9 @@ def get_session_class(name: str) -> type[QPSession]:
     """
     spec = BACKENDS.get(str(name).lower())
     if spec is None:
-        raise UnknownSolverError(
-            f"Unknown QP solver {name!r}; available: {', '.join(available_solvers()) or 'none'}."
-        )
-    if importlib.util.find_spec(spec.package) is None:
-        raise UnknownSolverError(
-            f"QP solver {spec.name!r} needs the package {spec.package!r}, which is not installed "
-            f"({spec.install_hint}); available: {', '.join(available_solvers()) or 'none'}."
-        )
+        raise UnknownSolverError(unknown_solver_message(name, available_solvers(), "QP solver"))
+    if not spec.installed:
+        raise UnknownSolverError(missing_package_message(spec, available_solvers(), "QP solver"))
     module = importlib.import_module(spec.module)
     cls: type[QPSession] = getattr(module, spec.cls)
     return cls
@@ -106,6 +129,7 @@ def solve_qp(problem: QPProblem, solver: str, **settings: Any) -> QPSolution:
 __all__ = [
     "BACKENDS",
     "INFEASIBLE",
+    "NO_RETRY",
     "SOC",
     "SOLUTION_INACCURATE",
     "SOLUTION_PRESENT",
@@ -117,14 +141,20 @@ __all__ = [
     "QPProblem",
     "QPSession",
     "QPSolution",
+    "RetryChain",
     "SettingsError",
     "Status",
     "UnknownSolverError",
     "UnsupportedProblemError",
+    "Update",
     "UpdateError",
     "Zero",
     "available_solvers",
+    "cone_violation",
     "get_session_class",
+    "missing_package_message",
     "open_session",
+    "retry_failed",
     "solve_qp",
+    "unknown_solver_message",
 ]

@@ -14,7 +14,7 @@ import numpy as np
 
 from solvers.exceptions import SettingsError
 from solvers.problem import Cone, QPSolution, Status
-from solvers.session import QPSession
+from solvers.session import QPSession, Update
 
 DEFAULTS: dict[str, Any] = {
     "verbose": False,
@@ -73,22 +73,9 @@ class ClarabelSession(QPSession):
         cones = [_cone(c) for c in prob.cones]
         self._solver = clarabel.DefaultSolver(prob.P, prob.q, prob.A, prob.b, cones, settings)
 
-    def _apply_update(
-        self,
-        P_data: np.ndarray | None,
-        q: np.ndarray | None,
-        A_data: np.ndarray | None,
-        b: np.ndarray | None,
-    ) -> None:
-        kwargs: dict[str, Any] = {}
-        if P_data is not None:
-            kwargs["P"] = P_data
-        if q is not None:
-            kwargs["q"] = q
-        if A_data is not None:
-            kwargs["A"] = A_data
-        if b is not None:
-            kwargs["b"] = b
+    def _apply_update(self, update: Update) -> None:
+        names = {"P": update.P_data, "q": update.q, "A": update.A_data, "b": update.b}
+        kwargs = {key: value for key, value in names.items() if value is not None}
         if kwargs:
             self._solver.update(**kwargs)
 

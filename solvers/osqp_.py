@@ -3,10 +3,7 @@
 Zero-cone rows become ``l = u = b``, non-negative-cone rows ``-inf <= A x <= b``. OSQP's
 solution polishing is on by default: on problems whose active set ADMM has found (always the case with
 equalities only) it returns the solution of the reduced KKT system, accurate far beyond ``eps_abs``.
-
-One option is this layer's own, not OSQP's: ``fallback_eps``. When set, a solve whose polishing did
-not succeed is repeated (warm-started) with ``eps_abs = eps_rel = fallback_eps``, so that loose ADMM
-tolerances can be used to find the active set quickly without ever returning a loose solution.
+Retrying a failed solve with other settings is a policy of the caller (:mod:`solvers.retry`).
 """
 
 from __future__ import annotations
@@ -19,7 +16,7 @@ import osqp
 
 from solvers.exceptions import SettingsError, UnsupportedProblemError
 from solvers.problem import QPSolution, Status
-from solvers.session import QPSession
+from solvers.session import QPSession, Update
 
 DEFAULTS: dict[str, Any] = {
     "verbose": False,
@@ -70,9 +67,6 @@ class OSQPSession(QPSession):
                 "approximation of the cone."
             )
         opts = {**DEFAULTS, **self.settings}
-        fallback = opts.pop("fallback_eps", None)
-        self._fallback_eps = None if fallback is None else float(fallback)
-        self._eps = (opts.get("eps_abs"), opts.get("eps_rel"))
         self._solver = osqp.OSQP()
         lower, upper = self._bounds()
         prob = self.problem
@@ -81,37 +75,22 @@ class OSQPSession(QPSession):
         except ValueError as err:
             raise SettingsError(f"OSQP rejected its settings: {err}") from err
 
-    def _apply_update(
-        self,
-        P_data: np.ndarray | None,
-        q: np.ndarray | None,
-        A_data: np.ndarray | None,
-        b: np.ndarray | None,
-    ) -> None:
+    def _apply_update(self, update: Update) -> None:
         kwargs: dict[str, Any] = {}
-        if q is not None:
-            kwargs["q"] = q
-        if b is not None:
+        if update.q is not None:
+            kwargs["q"] = update.q
+        if update.b is not None:
             kwargs["l"], kwargs["u"] = self._bounds()
-        if P_data is not None:
-            kwargs["Px"] = P_data
-        if A_data is not None:
-            kwargs["Ax"] = A_data
+        if update.P_data is not None:
+            kwargs["Px"] = update.P_data
+        if update.A_data is not None:
+            kwargs["Ax"] = update.A_data
         if kwargs:
             self._solver.update(**kwargs)
 
     def _solve(self) -> QPSolution:
         t0 = time.perf_counter()
         res = self._solver.solve(raise_error=False)
-        retried = False
-        if self._fallback_eps is not None and int(res.info.status_polish) != 1:
-            retried = True
-            eps = self._fallback_eps
-            self._solver.update_settings(eps_abs=eps, eps_rel=eps)
-            try:
-                res = self._solver.solve(raise_error=False)
-            finally:
-                self._solver.update_settings(eps_abs=self._eps[0], eps_rel=self._eps[1])
         elapsed = time.perf_counter() - t0
         info = res.info
         status = _STATUS.get(osqp.SolverStatus(info.status_val), Status.UNKNOWN)
@@ -132,6 +111,5 @@ class OSQPSession(QPSession):
                 "prim_res": float(info.prim_res),
                 "dual_res": float(info.dual_res),
                 "rho_updates": int(info.rho_updates),
-                "tightened": retried,
             },
         )

@@ -158,19 +158,36 @@ class QPProblem:
         """Per-row violation of ``x`` (zero where the row holds), shape ``(m,)``.
 
         Equality rows give ``|b - A x|``; inequality rows ``max(0, A x - b)``; each second-order cone
-        puts ``max(0, ||s_1..|| - s_0)`` on its first row and zeros on the others.
+        puts ``max(0, ||s_1..|| - s_0)`` on its first row and zeros on the others
+        (:func:`cone_violation`).
         """
         s = self.b - self.A @ x
         out = np.zeros(self.m)
         for cone, rows in self.cone_slices():
-            if cone.kind == "zero":
-                out[rows] = np.abs(s[rows])
-            elif cone.kind == "nonneg":
-                out[rows] = np.maximum(0.0, -s[rows])
+            if cone.kind == "soc":
+                out[rows.start] = cone_violation(s[rows], "soc", cone.dim)[0]
             else:
-                blk = s[rows]
-                out[rows.start] = max(0.0, float(np.linalg.norm(blk[1:]) - blk[0]))
+                out[rows] = cone_violation(s[rows], cone.kind, 1)
         return out
+
+
+def cone_violation(s: np.ndarray, kind: str, dim: int = 1) -> np.ndarray:
+    """How far the slacks ``s`` are from their cones: one value per unit, 0 where it holds.
+
+    ``s`` holds consecutive units of ``dim`` rows each (``dim = 1`` for the linear kinds). A ``zero``
+    row is violated by ``|s|``, a ``nonneg`` row by ``max(0, -s)``, a second-order cone
+    ``(s_0, s_1..)`` by ``max(0, ||s_1..|| - s_0)``: the distance, in the units of the rows, by which
+    the constraint is missed. The one residual every checker of this library uses.
+    """
+    s = np.asarray(s, dtype=float)
+    if kind == "zero":
+        return np.abs(s)
+    if kind == "nonneg":
+        return np.maximum(-s, 0.0)
+    if kind != "soc":
+        raise ProblemError(f"Expected cone kind 'zero', 'nonneg' or 'soc', got {kind!r}.")
+    units = s.reshape(-1, dim)
+    return np.maximum(np.linalg.norm(units[:, 1:], axis=1) - units[:, 0], 0.0)
 
 
 def _upper_triangle(P: sp.csc_matrix) -> sp.csc_matrix:

@@ -3,12 +3,27 @@
 from __future__ import annotations
 
 import abc
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
 from solvers.exceptions import UpdateError
 from solvers.problem import QPProblem, QPSolution
+
+
+@dataclass(frozen=True)
+class Update:
+    """New numbers for a session's problem (``None``: unchanged), already validated.
+
+    ``P_data`` and ``A_data`` are the values of the stored entries of ``P`` (upper triangle) and ``A`` in
+    CSC order; ``q`` and ``b`` are whole vectors.
+    """
+
+    P_data: np.ndarray | None = None
+    q: np.ndarray | None = None
+    A_data: np.ndarray | None = None
+    b: np.ndarray | None = None
 
 
 class QPSession(abc.ABC):
@@ -41,13 +56,7 @@ class QPSession(abc.ABC):
         """Hand :attr:`problem` to the backend."""
 
     @abc.abstractmethod
-    def _apply_update(
-        self,
-        P_data: np.ndarray | None,
-        q: np.ndarray | None,
-        A_data: np.ndarray | None,
-        b: np.ndarray | None,
-    ) -> None:
+    def _apply_update(self, update: Update) -> None:
         """Push new numbers (already validated and stored in :attr:`problem`) to the backend."""
 
     @abc.abstractmethod
@@ -89,7 +98,7 @@ class QPSession(abc.ABC):
             prob.A.data[:] = A_data
         if b is not None:
             prob.b = b
-        self._apply_update(P_data, q, A_data, b)
+        self._apply_update(Update(P_data, q, A_data, b))
 
     def solve(self) -> QPSolution:
         """Solve the current problem and return the backend's answer with a mapped status."""

@@ -25,7 +25,7 @@ def test_geometric_schedule_starts_at_start_and_ends_exactly_at_r() -> None:
     assert np.all(vals[29:] == 0.01)
     ratios = vals[1:30] / vals[:29]
     assert np.allclose(ratios, 0.01 ** (1 / 29), rtol=1e-12)
-    assert Anneal(1.0, 30).end(0.01, 100) == 30
+    assert po.Schedule.of(Anneal(1.0, 30), 0.01, 100).settled == 30
 
 
 def test_linear_and_custom_schedules() -> None:
@@ -36,7 +36,9 @@ def test_linear_and_custom_schedules() -> None:
     cfg = PMHTConfig(anneal=lambda i: max(0.01, 0.8**i))
     vals = cfg.anneal.values(0.01, 100)
     assert vals[0] == 0.8 and vals[-1] == 0.01
-    assert cfg.anneal.end(0.01, 100) == math.ceil(math.log(0.01) / math.log(0.8))  # first 0.8**i <= r
+    assert po.Schedule.of(cfg.anneal, 0.01, 100).settled == math.ceil(
+        math.log(0.01) / math.log(0.8)
+    )  # first 0.8**i <= r
     # With a length, the callable's last value is replaced by r.
     custom = Anneal.custom(lambda i: 2.0 / i, iterations=4).values(0.25, 6)
     assert np.allclose(custom, [2.0, 1.0, 2.0 / 3.0, 0.25, 0.25, 0.25])
@@ -45,7 +47,7 @@ def test_linear_and_custom_schedules() -> None:
 def test_schedule_longer_than_the_run_is_cut() -> None:
     vals = Anneal(1.0, 30).values(0.01, 10)
     assert vals.shape == (10,) and vals[-1] > 0.01
-    assert Anneal(1.0, 30).end(0.01, 10) == 11  # never settles within the run
+    assert po.Schedule.of(Anneal(1.0, 30), 0.01, 10).settled == 11  # never settles within the run
 
 
 @pytest.mark.parametrize(
@@ -100,7 +102,7 @@ def test_objective_never_decreases_after_the_schedule(small_b: po.Scenario, solv
     h = res.history
     assert h.r.shape == h.objective.shape
     assert h.r[0] == 1.0 and h.r[15] == small_b.r and np.all(h.r[15:] == small_b.r)
-    assert h.monotone_from == 15
+    assert h.settled == 15
     steps = np.diff(h.objective[15:])
     assert np.all(steps >= -1e-9 * np.abs(h.objective[15:-1]))
 
@@ -128,7 +130,7 @@ def test_empty_schedule_is_plain_em(small_b: po.Scenario, solver: str) -> None:
     assert np.array_equal(plain.states, empty.states)
     assert np.array_equal(plain.history.objective, empty.history.objective)
     assert np.array_equal(plain.states, one.states)  # a one-step schedule is already at r
-    assert plain.history.monotone_from == 0 and np.all(plain.history.r == small_b.r)
+    assert plain.history.settled == 0 and np.all(plain.history.r == small_b.r)
 
 
 @pytest.mark.parametrize("solver", ["clarabel", "osqp", "kalman", "cvxpy"])

@@ -32,7 +32,7 @@ from pmht_opt.model import POS
 from pmht_opt.mstep import MStepData, make_mstep, mstep_objective
 
 #: Largest violation accepted on a returned plan, per backend. OSQP stops ADMM at 1e-5 on
-#: constrained M-steps (see mstep.CONSTRAINED_DEFAULTS); its polygons are inner approximations, so
+#: constrained M-steps (see mstep.tuning.CONSTRAINED_DEFAULTS); its polygons are inner approximations, so
 #: the exact constraint is usually met with room to spare, but a step left unpolished may miss it
 #: by about the ADMM tolerance.
 VIOLATION_TOL = {"clarabel": 1e-6, "cvxpy": 1e-6, "osqp": 1e-4}
@@ -155,7 +155,11 @@ def _random_mstep(seed: int, sc: Scenario) -> tuple[MStepData, np.ndarray]:
     drift = rng.uniform(-0.08, 0.08, (sc.n_platforms, 1, 2)) * np.arange(T + 1)[None, :, None]
     states[:, :, POS] = states[:, :, POS] + drift
     es = estep(sc.locales, states[:, 1:, POS], None, None, sc.r * 30)
-    return MStepData(W=es.W, WZ=es.WZ, r=sc.r, ctx=None), states
+    return MStepData(W=es.W, WZ=es.WZ, r=sc.r), states
+
+
+def _objective(sc: Scenario, states: np.ndarray, data: MStepData) -> float:
+    return mstep_objective(sc.model, states, data.W, data.WZ, data.r)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -171,13 +175,15 @@ def test_backends_agree_on_constrained_msteps(seed: int) -> None:
     )
     objectives = {}
     paths = {}
-    for solver, conic in (("clarabel", True), ("cvxpy", True), ("clarabel-poly", False), ("osqp", False)):
+    ctx = ConstraintContext(scenario=sc, states=states, estep=es, iteration=5)
+    everything = tuple(range(len(cons)))
+    for solver in ("clarabel", "cvxpy", "clarabel-poly", "osqp"):
         ms = make_mstep(sc, solver.split("-")[0], constraints=cons)
-        ms.conic = conic
-        ctx = ConstraintContext(scenario=sc, states=states, estep=es, iteration=5, max_iter=10, conic=conic)
-        out = ms.solve(MStepData(W=data.W, WZ=data.WZ, r=data.r, ctx=ctx))
+        if solver == "clarabel-poly":
+            ms.rows.conic = False  # the polygons OSQP gets, on Clarabel
+        out = ms.solve(MStepData(W=data.W, WZ=data.WZ, r=data.r, ctx=ctx, active=everything))
         ms.close()
-        objectives[solver] = mstep_objective(sc.model, out.states, data)
+        objectives[solver] = _objective(sc, out.states, data)
         paths[solver] = out.states
         for con in cons:
             assert con.violation(out.states, ctx).max_violation <= VIOLATION_TOL[solver.split("-")[0]]
@@ -196,20 +202,19 @@ def test_constraints_never_improve_the_objective(solver: str) -> None:
     data, states = _random_mstep(7, sc)
     es = estep(sc.locales, states[:, 1:, POS], None, None, sc.r * 30)
     free = make_mstep(sc, solver)
-    ctx = ConstraintContext(scenario=sc, states=states, estep=es, iteration=1, max_iter=1, conic=free.conic)
-    j_free = mstep_objective(sc.model, free.solve(data).states, data)
+    ctx = ConstraintContext(scenario=sc, states=states, estep=es, iteration=1)
+    j_free = _objective(sc, free.solve(data).states, data)
     kinds = [[SpeedLimit(0.1)], [AreaBounds(0, 10, 0, 10), AccelLimit(0.01)]]
     if solver != "osqp":
         # Visits at the MAP times of these random paths force a manoeuvre with process noise up to
         # 9e4 and an objective of 1.3e10 (against 3 and -2e4 unconstrained): Clarabel solves it, ADMM
         # is still 1e-2 infeasible after 50 000 iterations with every fallback rho, and says so
-        # (SolverError). See mstep.FALLBACK_SETTINGS for the realistic cases OSQP does solve.
+        # (SolverError). See mstep.tuning.RETRIES for the realistic cases OSQP does solve.
         kinds.append([VisitAll(0.2, warmup=0)])
     for cons in kinds:
         ms = make_mstep(sc, solver, constraints=tuple(cons))
-        ctx.conic = ms.conic
-        out = ms.solve(MStepData(W=data.W, WZ=data.WZ, r=data.r, ctx=ctx))
-        j = mstep_objective(sc.model, out.states, data)
+        out = ms.solve(MStepData(W=data.W, WZ=data.WZ, r=data.r, ctx=ctx, active=tuple(range(len(cons)))))
+        j = _objective(sc, out.states, data)
         assert j >= j_free - 1e-6 * abs(j_free)
 
 

@@ -9,7 +9,6 @@ import pytest
 import scipy.sparse as sp
 
 import pmht_opt as po
-import pmht_opt.planner as planner_mod
 from pmht_opt.estep import EStepResult, estep, gate_margin, safe_log
 
 TOL = 1e-12
@@ -124,27 +123,14 @@ def test_good_gate_values_accepted() -> None:
     assert po.PMHTConfig(estep_gate=np.float64(30)).estep_gate == 30.0
 
 
-def _count_gated(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
-    seen: list[bool] = []
-    real = planner_mod.estep
-
-    def spy(*args: Any, **kwargs: Any) -> EStepResult:
-        out = real(*args, **kwargs)
-        seen.append(out.gated)
-        return out
-
-    monkeypatch.setattr(planner_mod, "estep", spy)
-    return seen
-
-
 @pytest.mark.parametrize("anneal", [None, po.Anneal(1.0, 8)])
-def test_whole_plan_gated_equals_dense(monkeypatch: pytest.MonkeyPatch, anneal: Any) -> None:
+def test_whole_plan_gated_equals_dense(anneal: Any) -> None:
     sc = po.paper_scenario("A", seed=1, horizon=250)
     base = {"solver": "kalman", "max_iter": 25, "anneal": anneal}
     dense = po.plan_pmht(sc, po.PMHTConfig(estep_gate=None, **base))
-    seen = _count_gated(monkeypatch)
+    assert not dense.history.estep_gated.any()
     gated = po.plan_pmht(sc, po.PMHTConfig(**base))
-    assert sum(seen) >= 10  # most E-steps were gated
+    assert gated.history.estep_gated.sum() >= 10  # most E-steps were gated
     np.testing.assert_allclose(gated.positions, dense.positions, atol=1e-9)
     np.testing.assert_array_equal(gated.assignment, dense.assignment)
     np.testing.assert_array_equal(gated.visit_time, dense.visit_time)
@@ -152,34 +138,31 @@ def test_whole_plan_gated_equals_dense(monkeypatch: pytest.MonkeyPatch, anneal: 
     np.testing.assert_allclose(gated.history.objective, dense.history.objective, rtol=1e-12)
 
 
-def test_visit_all_plan_gated_equals_dense(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_visit_all_plan_gated_equals_dense() -> None:
     sc = po.paper_scenario("A", seed=1, horizon=200)
     visits = [po.VisitAll(0.1, warmup=2)]
     base = {"solver": "clarabel", "max_iter": 8, "anneal": po.Anneal(1.0, 3), "constraints": visits}
     dense = po.plan_pmht(sc, po.PMHTConfig(estep_gate=None, **base))
-    seen = _count_gated(monkeypatch)
     gated = po.plan_pmht(sc, po.PMHTConfig(**base))
-    assert any(seen)
+    assert gated.history.estep_gated.any()
     np.testing.assert_allclose(gated.positions, dense.positions, atol=1e-5)
     np.testing.assert_array_equal(gated.visit_time, dense.visit_time)
 
 
-def test_auto_gate_is_dense_with_time_prior_update(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_auto_gate_is_dense_with_time_prior_update() -> None:
     sc = po.paper_scenario("A", seed=1, horizon=150)
-    seen = _count_gated(monkeypatch)
-    po.plan_pmht(sc, po.PMHTConfig(solver="kalman", max_iter=6, anneal=None, update_time_prior=True))
-    assert seen and not any(seen)
+    res = po.plan_pmht(sc, po.PMHTConfig(solver="kalman", max_iter=6, anneal=None, update_time_prior=True))
+    assert res.history.estep_gated.shape == (7,) and not res.history.estep_gated.any()
 
 
-def test_smoothed_plan_gated_equals_dense(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_smoothed_plan_gated_equals_dense() -> None:
     # Windowed time prior, one-hot platform prior: candidates from the priors' support; the polyline
     # start passes knots between steps, so equally distant steps must be tied alike in both E-steps.
     sc = po.paper_scenario("A", seed=1, horizon=300)
     tour = po.order_locales(sc, method="ga")
     cfg: dict[str, Any] = {"max_iter": 4}
     dense = po.plan_smoothed(sc, tour, po.PMHTConfig(estep_gate=None, **cfg))
-    seen = _count_gated(monkeypatch)
     gated = po.plan_smoothed(sc, tour, po.PMHTConfig(**cfg))
-    assert all(seen)
+    assert gated.history.estep_gated.all()
     np.testing.assert_allclose(gated.positions, dense.positions, atol=1e-5)
     np.testing.assert_array_equal(gated.visit_time, dense.visit_time)

@@ -1,4 +1,4 @@
-"""Single M-steps: every backend against the RTS reference on random weights (issue 2, point 1)."""
+"""Single M-steps: every backend against the RTS reference on random weights."""
 
 from __future__ import annotations
 
@@ -8,6 +8,8 @@ from conftest import ALL_BACKENDS, POSITION_TOL, QP_BACKENDS
 
 import pmht_opt as po
 from pmht_opt.mstep import MStepData, make_mstep, mstep_objective
+from pmht_opt.mstep.tuning import RETRIES
+from solvers import RetryChain
 
 
 def random_weights(scenario: po.Scenario, rng: np.random.Generator, zero_fraction: float) -> MStepData:
@@ -23,12 +25,12 @@ def random_weights(scenario: po.Scenario, rng: np.random.Generator, zero_fractio
 def test_random_mstep_agrees_with_rts(scenario_a: po.Scenario, backend: str, seed: int) -> None:
     rng = np.random.default_rng(seed)
     data = random_weights(scenario_a, rng, zero_fraction=0.4)
-    ref = make_mstep(scenario_a, "kalman").solve(data).states
-    got = make_mstep(scenario_a, backend).solve(data).states
+    ref = po.solve_mstep(scenario_a, data.W, data.WZ, data.r, solver="kalman")
+    got = po.solve_mstep(scenario_a, data.W, data.WZ, data.r, solver=backend)
     np.testing.assert_array_equal(got[:, 0], scenario_a.initial_states)
     assert np.max(np.abs(got[:, :, [0, 3]] - ref[:, :, [0, 3]])) < POSITION_TOL
-    obj_ref = mstep_objective(scenario_a.model, ref, data)
-    assert mstep_objective(scenario_a.model, got, data) == pytest.approx(obj_ref, rel=1e-9)
+    obj_ref = mstep_objective(scenario_a.model, ref, data.W, data.WZ, data.r)
+    assert mstep_objective(scenario_a.model, got, data.W, data.WZ, data.r) == pytest.approx(obj_ref, rel=1e-9)
 
 
 @pytest.mark.parametrize("backend", ALL_BACKENDS)
@@ -98,13 +100,11 @@ def test_inaccurate_solutions_are_refused_unless_accepted(scenario_a: po.Scenari
 
 
 def test_fallback_settings_give_way_to_the_callers(scenario_a: po.Scenario) -> None:
-    from pmht_opt.mstep import FALLBACK_SETTINGS
-
-    assert make_mstep(scenario_a, "osqp").blocks[0].fallback_settings == FALLBACK_SETTINGS["osqp"]
+    assert make_mstep(scenario_a, "osqp").blocks[0].retries == RETRIES["osqp"]
     # A caller who picks rho has chosen what the fallbacks would change: none is tried.
-    assert make_mstep(scenario_a, "osqp", {"rho": 5.0}).blocks[0].fallback_settings == ()
-    only = make_mstep(scenario_a, "clarabel", {"max_iter": 50}).blocks[0].fallback_settings
-    assert only == FALLBACK_SETTINGS["clarabel"]
+    assert make_mstep(scenario_a, "osqp", {"rho": 5.0}).blocks[0].retries.sets == ()
+    only = make_mstep(scenario_a, "clarabel", {"max_iter": 50}).blocks[0].retries
+    assert only == RETRIES["clarabel"]
 
 
 @pytest.mark.parametrize(
@@ -120,21 +120,21 @@ def test_failed_solves_go_through_the_fallback_chain_in_order(
     data = random_weights(scenario_a, np.random.default_rng(0), 0.3)
     mstep = make_mstep(scenario_a, backend, fast)
     for block in mstep.blocks:
-        block.fallback_settings = chain  # the first set still fails, the second solves
+        block.retries = RetryChain(chain)  # the first set still fails, the second solves
     out = mstep.solve(data)
     active = int(np.sum(np.any(data.W > 0, axis=0)))
-    assert out.info["fallbacks"] == active >= 1
+    assert out.fallbacks == active >= 1
     ref = make_mstep(scenario_a, "kalman").solve(data)
     assert np.max(np.abs(out.states - ref.states)) <= POSITION_TOL
     # The set that solved is kept for the platform's later solves: the next needs no fallback.
     assert mstep.blocks[0].settings["max_iter"] == chain[1]["max_iter"]
     again = mstep.solve(data)
-    assert again.info["fallbacks"] == 0
+    assert again.fallbacks == 0
     assert np.max(np.abs(again.states - ref.states)) <= POSITION_TOL
     # No set solves: the first failure is what the caller sees.
     failing = make_mstep(scenario_a, backend, fast)
     for block in failing.blocks:
-        block.fallback_settings = chain[:1]
+        block.retries = RetryChain(chain[:1])
     with pytest.raises(po.SolverError, match="M-step solve failed"):
         failing.solve(data)
 

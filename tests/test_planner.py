@@ -61,7 +61,7 @@ def test_objective_never_decreases_with_either_time_prior(update_time_prior: boo
 
 def assert_monotone(history: po.IterationHistory, plain: bool = False, rel: float = 1e-9) -> None:
     """The objective never falls once r stays fixed (from the start for plain EM)."""
-    start = history.monotone_from
+    start = history.settled
     if plain:
         assert start == 0
     objective = history.objective[start:]

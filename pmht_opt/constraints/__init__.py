@@ -2,29 +2,31 @@
 
 Each kind is one class sharing the protocol of :class:`~pmht_opt.constraints.base.Constraint`: the
 rows it adds to a platform's M-step (backend-neutral conic rows), and how a plan is checked against
-it. To add a kind, subclass :class:`Constraint` and implement :meth:`~Constraint.blocks`; with the
-``cvxpy`` backend, :class:`CvxpyConstraint` takes any cvxpy expression instead.
+it. To add a kind, subclass :class:`Constraint`, declare what it :attr:`~Constraint.needs` and
+implement :meth:`~Constraint.blocks`; with the ``cvxpy`` backend, :class:`CvxpyConstraint` takes any
+cvxpy expression instead.
 
-=====================  =====================================  ===========================
-kind                   what                                   OSQP
-=====================  =====================================  ===========================
-SpeedLimit, AccelLimit norm of velocity / acceleration        inner polygon (``sides``)
-AreaBounds             box on positions                       exact
-CircleObstacle         keep-out disc, linearised per step     exact (half-planes)
-PolygonObstacle        keep-out convex polygon, linearised    exact (half-planes)
-VisitAll               every locale within a radius           inner polygon
-Terminal               final velocity / position              exact, or inner polygon
-CvxpyConstraint        anything in cvxpy                      not supported (cvxpy only)
-=====================  =====================================  ===========================
+=====================  =====================================  ===================================
+kind                   what                                   needs (without cones)
+=====================  =====================================  ===================================
+SpeedLimit, AccelLimit norm of velocity / acceleration        soc (inner polygon, ``sides``)
+AreaBounds             box on positions                       linear
+CircleObstacle         keep-out disc, linearised per step     linear (half-planes)
+PolygonObstacle        keep-out convex polygon, linearised    linear (half-planes)
+VisitAll               every locale within a radius           soc (inner polygon)
+Terminal               final velocity / position              linear, soc for a radius
+CvxpyConstraint        anything in cvxpy                      cvxpy (the cvxpy backend only)
+=====================  =====================================  ===================================
 """
 
 from pmht_opt.constraints.area import AreaBounds
 from pmht_opt.constraints.base import (
-    Block,
+    CAPABILITIES,
     Constraint,
     ConstraintContext,
     ConstraintReport,
 )
+from pmht_opt.constraints.blocks import Block
 from pmht_opt.constraints.motion import AccelLimit, SpeedLimit
 from pmht_opt.constraints.obstacles import CircleObstacle, PolygonObstacle
 from pmht_opt.constraints.terminal import Terminal
@@ -32,6 +34,7 @@ from pmht_opt.constraints.user import CvxpyConstraint, CvxpyVariables
 from pmht_opt.constraints.visits import VisitAll, choose_visits
 
 __all__ = [
+    "CAPABILITIES",
     "AccelLimit",
     "AreaBounds",
     "Block",

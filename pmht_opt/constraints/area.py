@@ -6,7 +6,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pmht_opt.constraints.base import Block, Constraint, ConstraintContext, state_rows
+from pmht_opt.constraints.base import Constraint, ConstraintContext
+from pmht_opt.constraints.blocks import Block, state_rows
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.model import PX, PY
 
@@ -42,12 +43,6 @@ class AreaBounds(Constraint):
     @property
     def name(self) -> str:
         return "AreaBounds({:g}, {:g}, {:g}, {:g})".format(*self.box)
-
-    def draw(self, ax: Any) -> None:
-        from matplotlib.patches import Rectangle
-
-        xmin, xmax, ymin, ymax = self.box
-        ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, ls="--", lw=1.2, ec="C3"))
 
     def check_scenario(self, scenario: Scenario) -> None:
         super().check_scenario(scenario)

@@ -6,14 +6,9 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from pmht_opt.constraints.base import (
-    DEFAULT_SIDES,
-    Block,
-    Constraint,
-    ConstraintContext,
-    check_sides,
-    disc_block,
-)
+from pmht_opt.constraints.base import Constraint, ConstraintContext
+from pmht_opt.constraints.blocks import DEFAULT_SIDES, Block, disc_block
+from pmht_opt.constraints.params import check_sides
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.model import AX, AY, VX, VY
 
@@ -22,8 +17,10 @@ if TYPE_CHECKING:
 
 
 class _NormLimit(Constraint):
-    """``||(x_t[a], x_t[b])|| <= limit`` for ``t = 1..T``: a cone per step, or an inner polygon on OSQP."""
+    """``||(x_t[a], x_t[b])|| <= limit`` for ``t = 1..T``: a cone per step (inner polygons on a backend
+    without cones)."""
 
+    needs = frozenset({"soc"})
     comps: ClassVar[tuple[int, int]] = (VX, VY)
     quantity: ClassVar[str] = ""
 
@@ -61,9 +58,7 @@ class _NormLimit(Constraint):
         T = ctx.scenario.horizon
         times = np.arange(1, T + 1)
         return [
-            disc_block(
-                m, T, times, self.comps, np.zeros(2), np.full(T, self.limit_for(m)), ctx.conic, self.sides
-            )
+            disc_block(m, T, times, self.comps, np.zeros(2), np.full(T, self.limit_for(m)), self.sides)
             for m in self.applies_to(ctx.scenario)
         ]
 

@@ -16,25 +16,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pmht_opt.constraints.base import (
-    VIOLATION_TOL,
-    Block,
-    Constraint,
-    ConstraintContext,
-    ConstraintReport,
-    point_array,
-    positive_number,
-    state_rows,
-)
+from pmht_opt.constraints.base import VIOLATION_TOL, Constraint, ConstraintContext, ConstraintReport
+from pmht_opt.constraints.blocks import Block, state_rows
+from pmht_opt.constraints.params import point_array, positive_number
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.model import POS, PX, PY
 
 if TYPE_CHECKING:
     from pmht_opt.scenario import Scenario
-
-
-#: How keep-out zones are drawn in figures: hatched grey, under the paths.
-KEEP_OUT_STYLE: dict[str, Any] = {"fc": "0.85", "ec": "0.3", "lw": 0.8, "hatch": "//", "zorder": 0}
 
 
 class _Obstacle(Constraint):
@@ -129,11 +118,6 @@ class CircleObstacle(_Obstacle):
             normals = np.where(degenerate[:, None], away[None, :], rel / norm[:, None])
         return normals, normals @ self.center + self.radius
 
-    def draw(self, ax: Any) -> None:
-        from matplotlib.patches import Circle
-
-        ax.add_patch(Circle(tuple(self.center), self.radius, **KEEP_OUT_STYLE))
-
     def penetration(self, points: np.ndarray) -> np.ndarray:
         rel = np.asarray(points) - self.center
         return np.maximum(self.radius - np.hypot(rel[..., 0], rel[..., 1]), 0.0)
@@ -191,11 +175,6 @@ class PolygonObstacle(_Obstacle):
     def name(self) -> str:
         c = self.vertices.mean(axis=0)
         return f"PolygonObstacle({self.vertices.shape[0]} corners around ({c[0]:.3g}, {c[1]:.3g}))"
-
-    def draw(self, ax: Any) -> None:
-        from matplotlib.patches import Polygon
-
-        ax.add_patch(Polygon(self.vertices, closed=True, **KEEP_OUT_STYLE))
 
     def _signed(self, points: np.ndarray) -> np.ndarray:
         return np.asarray(points) @ self.normals.T - self.offsets  # (..., K): > 0 outside that edge

@@ -6,17 +6,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pmht_opt.constraints.base import (
-    DEFAULT_SIDES,
-    Block,
-    Constraint,
-    ConstraintContext,
-    check_sides,
-    disc_block,
-    point_array,
-    positive_number,
-    state_rows,
-)
+from pmht_opt.constraints.base import Constraint, ConstraintContext
+from pmht_opt.constraints.blocks import DEFAULT_SIDES, Block, disc_block, state_rows
+from pmht_opt.constraints.params import check_sides, point_array, positive_number
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.model import AX, AY, PX, PY, VX, VY
 
@@ -60,6 +52,9 @@ class Terminal(Constraint):
         self.position = None if position is None else self._points("position", position)
         self.radius = positive_number("Terminal.radius", radius, allow_zero=True)
         self.sides = check_sides("Terminal", sides)
+        # A final position within a radius is a cone; everything else is linear rows.
+        if self.position is not None and self.radius > 0:
+            self.needs = frozenset({"linear", "soc"})
 
     @staticmethod
     def _points(name: str, value: Any) -> np.ndarray:
@@ -102,16 +97,8 @@ class Terminal(Constraint):
                     G = state_rows(T, np.array([T, T]), np.array([PX, PY]), np.eye(2))
                     out.append(Block(m, "zero", G, target, times=np.array([T, T])))
                 else:
-                    out.append(
-                        disc_block(
-                            m,
-                            T,
-                            end,
-                            (PX, PY),
-                            target[None, :],
-                            np.array([self.radius]),
-                            ctx.conic,
-                            self.sides,
-                        )
+                    disc = disc_block(
+                        m, T, end, (PX, PY), target[None, :], np.array([self.radius]), self.sides
                     )
+                    out.append(disc)
         return out

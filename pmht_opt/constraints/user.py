@@ -4,11 +4,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
-from pmht_opt.constraints.base import Block, Constraint, ConstraintContext, ConstraintReport
+from pmht_opt.constraints.base import Constraint, ConstraintContext, ConstraintReport
+from pmht_opt.constraints.blocks import Block
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.model import AX, AY, PX, PY, VX, VY
 
@@ -67,8 +68,8 @@ class CvxpyConstraint(Constraint):
     name
         Label used in reports and error messages.
     soft, weight
-        In soft mode each returned inequality ``lhs <= rhs`` becomes the penalty
-        ``weight * sum(pos(lhs - rhs))`` and each equality ``weight * sum(abs(lhs - rhs))``.
+        In soft mode every entry of a returned inequality or equality gets a slack with the
+        penalty ``weight`` per unit of violation.
 
     Examples
     --------
@@ -77,7 +78,7 @@ class CvxpyConstraint(Constraint):
         CvxpyConstraint(lambda v: [v.positions[0][:250, 0] <= 5.0], name="west first")
     """
 
-    backends: ClassVar[frozenset[str]] = frozenset({"cvxpy"})
+    needs = frozenset({"cvxpy"})
 
     def __init__(
         self, fn: Callable[[CvxpyVariables], Any], name: str = "CvxpyConstraint", **kwargs: Any
@@ -95,9 +96,12 @@ class CvxpyConstraint(Constraint):
     def blocks(self, ctx: ConstraintContext) -> list[Block]:
         return []
 
-    def build(self, variables: CvxpyVariables) -> tuple[list[Any], Any]:
-        """``(constraints, penalty)`` for the cvxpy problem: hard constraints, or a penalty expression
-        (``0`` when hard)."""
+    def build(self, variables: CvxpyVariables) -> list[Any]:
+        """The cvxpy constraints ``fn`` writes on ``variables``, checked to be cvxpy constraints.
+
+        In soft mode the M-step relaxes them by the exact L1 rule of every soft constraint
+        (:func:`pmht_opt.mstep.rows.soften_cvxpy`): inequalities and equalities only.
+        """
         import cvxpy as cp
 
         out = self.fn(variables)
@@ -105,19 +109,11 @@ class CvxpyConstraint(Constraint):
         for c in items:
             if not isinstance(c, cp.constraints.constraint.Constraint):
                 raise ConfigError(f"{self.name}: fn must return cvxpy constraints, got {type(c).__name__}.")
-        if not self.soft:
-            return items, 0
-        penalty = 0
-        for c in items:
-            if isinstance(c, cp.constraints.Inequality):
-                penalty += self.weight * cp.sum(cp.pos(c.args[0] - c.args[1]))
-            elif isinstance(c, cp.constraints.Equality):
-                penalty += self.weight * cp.sum(cp.abs(c.args[0] - c.args[1]))
-            else:
+            if self.soft and not isinstance(c, (cp.constraints.Inequality, cp.constraints.Equality)):
                 raise ConfigError(
                     f"{self.name}: soft mode takes inequalities and equalities only, got {type(c).__name__}."
                 )
-        return [], penalty
+        return items
 
     def violation(self, states: np.ndarray, ctx: ConstraintContext) -> ConstraintReport:
         import cvxpy as cp

@@ -6,16 +6,9 @@ from typing import Any
 
 import numpy as np
 
-from pmht_opt.constraints.base import (
-    DEFAULT_SIDES,
-    Block,
-    Constraint,
-    ConstraintContext,
-    ConstraintReport,
-    check_sides,
-    disc_block,
-    positive_number,
-)
+from pmht_opt.constraints.base import Constraint, ConstraintContext, ConstraintReport
+from pmht_opt.constraints.blocks import DEFAULT_SIDES, Block, disc_block
+from pmht_opt.constraints.params import check_sides, positive_number
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.model import POS, PX, PY
 
@@ -88,7 +81,8 @@ class VisitAll(Constraint):
     PMHT's coverage is soft: a locale pulls on the path with weight ``1 / r`` but may be left out.
     This constraint makes it a guarantee: each iteration's M-step requires ``||p_t^m - z_n|| <= radius``
     for the E-step's most probable ``(m, t)`` of every locale (re-chosen every iteration; conflicts
-    resolved by :func:`choose_visits`). A cone per locale, or an inner polygon on OSQP.
+    resolved by :func:`choose_visits`). A cone per locale (an inner polygon on a backend without
+    cones).
 
     Parameters
     ----------
@@ -97,17 +91,18 @@ class VisitAll(Constraint):
     warmup
         EM iterations run without the constraint first, so the MAP times come from paths that already
         pass near the locales (from the standing start every time is equally likely). They are counted
-        from the end of an annealing schedule (the wide early penalties blur the MAP times): the
-        constraint is imposed from iteration ``min(settled - 1 + warmup, max_iter - 1) + 1`` on, where
-        ``settled`` is the first iteration at the scenario's ``r``, so the returned plan always has it.
+        from the end of an annealing schedule (the wide early penalties blur the MAP times); the
+        planner's schedule (:class:`~pmht_opt.schedule.Schedule`) always imposes the constraint on the
+        last iteration at least, so the returned plan has it.
     sides
-        Sides of the inner polygon on OSQP.
+        Sides of the inner polygon on a backend without cones.
     soft, weight, platforms
         See :class:`~pmht_opt.constraints.base.Constraint`; ``platforms`` is not used (the locale's MAP
         platform is constrained).
     """
 
     dynamic = True
+    needs = frozenset({"soc"})
 
     def __init__(
         self, radius: float = 0.1, warmup: int = 10, sides: int = DEFAULT_SIDES, **kwargs: Any
@@ -116,15 +111,12 @@ class VisitAll(Constraint):
         self.radius = positive_number("VisitAll.radius", radius)
         if isinstance(warmup, bool) or not isinstance(warmup, (int, np.integer)) or warmup < 0:
             raise ConfigError(f"VisitAll.warmup: expected an integer >= 0, got {warmup!r}.")
-        self.warmup = int(warmup)
+        self.warmup: int | None = int(warmup)
         self.sides = check_sides("VisitAll", sides)
 
     @property
     def name(self) -> str:
         return f"VisitAll({self.radius:g})"
-
-    def active(self, iteration: int, max_iter: int, settled: int = 1) -> bool:
-        return iteration > min(settled - 1 + self.warmup, max_iter - 1)
 
     def visits(self, ctx: ConstraintContext) -> tuple[np.ndarray, np.ndarray]:
         """``(platform (N,), time (N,))`` of the visit each locale must make in this iteration."""
@@ -144,7 +136,6 @@ class VisitAll(Constraint):
                         (PX, PY),
                         ctx.scenario.locales[mine],
                         np.full(mine.size, self.radius),
-                        ctx.conic,
                         self.sides,
                         labels=[f"locale {n}" for n in mine.tolist()],
                     )

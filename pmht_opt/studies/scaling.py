@@ -55,7 +55,8 @@ import scipy.sparse as sp
 
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.montecarlo import run_trials
-from pmht_opt.mstep import MSTEP_BACKENDS, available_backends
+from pmht_opt.mstep import BACKENDS as MSTEP_BACKENDS
+from pmht_opt.mstep import available_backends
 
 TARGET_SECONDS = 60.0
 TARGET_GIB = 4.0

@@ -1,0 +1,316 @@
+"""The EM loop of the PMHT planner as an object that can be stepped and watched.
+
+:class:`EMRun` holds one run: the current paths, priors and E-step, the M-step backend, the schedule
+(:class:`~pmht_opt.schedule.Schedule`: the penalty ``r``, the end of annealing and the constraints
+imposed at each iteration) and the stopping criterion. :meth:`EMRun.step` runs one iteration (prior
+updates, M-step, E-step, objective); :meth:`EMRun.run` steps until the criterion says stop and returns
+the :class:`~pmht_opt.result.PlanResult`. Observers get :class:`EMCallbacks` after every E-step, M-step
+and iteration, so studies watch a run without re-implementing it.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+import solvers
+from pmht_opt.constraints.base import ConstraintContext
+from pmht_opt.estep import EStepResult, estep, gate_margin, safe_log
+from pmht_opt.exceptions import ConfigError, ScenarioError
+from pmht_opt.model import POS, STATE_DIM
+from pmht_opt.mstep.base import MStepData, MStepOutput
+from pmht_opt.mstep.registry import make_mstep
+from pmht_opt.planner import PMHTConfig
+from pmht_opt.result import IterationHistory, PlanResult
+from pmht_opt.scenario import Scenario
+from pmht_opt.schedule import Schedule
+from pmht_opt.stopping import ObjectiveTolerance, Progress
+
+
+@dataclass(frozen=True)
+class IterationRecord:
+    """What one EM iteration did.
+
+    ``objective`` is the EM objective after the iteration, computed with its ``r``; ``estep_gated``
+    says whether the E-step whose weights feed the next M-step was gated.
+    """
+
+    iteration: int
+    r: float
+    objective: float
+    estep_time: float
+    mstep_time: float
+    solver_iterations: int
+    fallbacks: int
+    mstep_status: solvers.Status
+    estep_gated: bool
+
+
+@dataclass(frozen=True)
+class EMCallbacks:
+    """Observers of an :class:`EMRun`, each called with the run and what just happened.
+
+    ``after_estep(run, estep)`` follows every E-step (the initial one included), ``after_mstep(run,
+    output)`` every M-step, ``after_iteration(run, record)`` every iteration.
+    """
+
+    after_estep: Callable[[EMRun, EStepResult], None] | None = None
+    after_mstep: Callable[[EMRun, MStepOutput], None] | None = None
+    after_iteration: Callable[[EMRun, IterationRecord], None] | None = None
+
+
+def _initial_log_prior(name: str, prior: Any, shape: tuple[int, int]) -> np.ndarray | None:
+    if prior is None:
+        return None
+    arr = np.asarray(prior, dtype=float)
+    if arr.shape != shape:
+        raise ScenarioError(f"{name} must have shape {shape}, got {arr.shape}.")
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise ScenarioError(f"{name} must be finite and non-negative.")
+    sums = arr.sum(axis=1)
+    if np.any(sums <= 0):
+        raise ScenarioError(f"{name} has a locale (row {int(np.argmin(sums))}) with no mass.")
+    return safe_log(arr / sums[:, None])
+
+
+def _initial_paths(scenario: Scenario, paths: Any) -> np.ndarray:
+    x0 = scenario.initial_states
+    M, T = scenario.n_platforms, scenario.horizon
+    if paths is None:
+        # Every platform standing still at its start.
+        return np.repeat(x0[:, None, :], T + 1, axis=1)
+    arr = np.asarray(paths, dtype=float)
+    if arr.shape != (M, T + 1, STATE_DIM):
+        raise ScenarioError(f"initial_paths must have shape {(M, T + 1, STATE_DIM)}, got {arr.shape}.")
+    if not np.all(np.isfinite(arr)):
+        raise ScenarioError("initial_paths contains NaN or infinite values.")
+    if not np.allclose(arr[:, 0], x0):
+        raise ScenarioError("initial_paths must start (t = 0) at the scenario's start states.")
+    return arr.copy()
+
+
+class EMRun:
+    """One run of the PMHT planner's EM, from the standing (or given) paths to a plan.
+
+    Parameters
+    ----------
+    scenario
+        The locales, starts and model.
+    config
+        Planner settings (:class:`~pmht_opt.PMHTConfig`).
+    time_prior, platform_prior
+        Initial ``pi^tau (N, T)`` and ``pi^k (N, M)``; uniform when ``None``.
+    initial_paths
+        ``(M, T+1, 6)`` paths to start from; default: every platform standing at its start.
+    callbacks
+        Observers (:class:`EMCallbacks`).
+
+    Attributes
+    ----------
+    states
+        ``(M, T+1, 6)`` current paths.
+    estep
+        The E-step of the current paths (at the next iteration's ``r``).
+    iteration
+        Iterations run so far.
+    last_context
+        The :class:`~pmht_opt.constraints.ConstraintContext` of the last M-step (``None`` before the
+        first): what its constraint rows were written from.
+    stop_reason
+        ``None`` while the run goes on; then the name of the criterion that stopped it.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        config: PMHTConfig | None = None,
+        *,
+        time_prior: Any = None,
+        platform_prior: Any = None,
+        initial_paths: Any = None,
+        callbacks: EMCallbacks | None = None,
+    ) -> None:
+        if not isinstance(scenario, Scenario):
+            raise ScenarioError(f"Expected a Scenario, got {type(scenario).__name__}.")
+        cfg = config if config is not None else PMHTConfig()
+        if not isinstance(cfg, PMHTConfig):
+            raise ConfigError(f"config must be a PMHTConfig, got {type(cfg).__name__}.")
+        N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon
+        self.scenario = scenario
+        self.config = cfg
+        self.callbacks = callbacks if callbacks is not None else EMCallbacks()
+        self.log_tau = _initial_log_prior("time_prior", time_prior, (N, T))
+        self.log_k = _initial_log_prior("platform_prior", platform_prior, (N, M))
+        self.states = _initial_paths(scenario, initial_paths)
+        for con in cfg.constraints:
+            con.check_scenario(scenario)
+        self.schedule = Schedule.of(cfg.anneal, scenario.r, cfg.max_iter)
+        self.criteria = cfg.criteria()
+        # "auto" gates only where the gated EM is the dense one to rounding: not with the time-prior update.
+        auto_off = cfg.estep_gate == "auto" and cfg.update_time_prior
+        self.gate = None if auto_off else gate_margin(cfg.estep_gate, T, M)
+        self._started = time.perf_counter()
+        threads = cfg.threads if cfg.threads is not None else min(M, os.cpu_count() or 1)
+        self.mstep = make_mstep(
+            scenario, cfg.solver, cfg.solver_settings, cfg.accept_inaccurate, threads, tuple(cfg.constraints)
+        )
+        self.iteration = 0
+        self.last_context: ConstraintContext | None = None
+        self.stop_reason: str | None = None
+        self.records: list[IterationRecord] = []
+        self.snapshots: dict[int, np.ndarray] = {}
+        if 0 in cfg.snapshots:
+            self.snapshots[0] = self.states[:, :, POS].copy()
+        t0 = time.perf_counter()
+        r0 = self.schedule.r_at(1)
+        self.estep, objective = self._estep(self.states, r0)
+        self._initial = (objective, time.perf_counter() - t0, r0, self.estep.gated)
+        self._objectives = [objective]
+        self._notify(self.callbacks.after_estep, self.estep)
+
+    # ------------------------------------------------------------------ the loop
+
+    def _estep(self, states: np.ndarray, r: float) -> tuple[EStepResult, float]:
+        es = estep(self.scenario.locales, states[:, 1:, POS], self.log_tau, self.log_k, r, gate=self.gate)
+        return es, self.scenario.model.log_prior(states) + es.log_likelihood
+
+    def _notify(self, fn: Callable[[EMRun, Any], None] | None, value: Any) -> None:
+        if fn is not None:
+            fn(self, value)
+
+    @property
+    def done(self) -> bool:
+        """Whether the stopping criterion has stopped the run."""
+        return self.stop_reason is not None
+
+    def step(self) -> IterationRecord:
+        """Run one EM iteration: prior updates, M-step, E-step and objective; then the stop test."""
+        if self.done:
+            raise ConfigError(f"the run has stopped ({self.stop_reason}); start a new EMRun.")
+        cfg, schedule = self.config, self.schedule
+        it = self.iteration + 1
+        r = schedule.r_at(it)
+        es = self.estep
+        if cfg.update_time_prior:
+            self.log_tau = safe_log(es.time_prior())
+        if cfg.update_platform_prior:
+            self.log_k = safe_log(es.platform_prior())
+        ctx = ConstraintContext(scenario=self.scenario, states=self.states, estep=es, iteration=it)
+        active = schedule.active(cfg.constraints, it)
+        t0 = time.perf_counter()
+        out = self.mstep.solve(MStepData(W=es.W, WZ=es.WZ, r=r, ctx=ctx, active=active))
+        mstep_time = time.perf_counter() - t0
+        self.last_context = ctx
+        self._notify(self.callbacks.after_mstep, out)
+        self.states = out.states
+        t0 = time.perf_counter()
+        es, objective = self._estep(self.states, r)
+        if it < schedule.max_iter and schedule.r_at(it + 1) != r:
+            # The objective is recorded at this iteration's r; the next iteration weighs with its own.
+            es, _ = self._estep(self.states, schedule.r_at(it + 1))
+        estep_time = time.perf_counter() - t0
+        self.estep = es
+        self.iteration = it
+        self._objectives.append(objective)
+        self._notify(self.callbacks.after_estep, es)
+        record = IterationRecord(
+            iteration=it,
+            r=r,
+            objective=objective,
+            estep_time=estep_time,
+            mstep_time=mstep_time,
+            solver_iterations=out.iterations,
+            fallbacks=out.fallbacks,
+            mstep_status=out.status,
+            estep_gated=es.gated,
+        )
+        self.records.append(record)
+        if it in cfg.snapshots:
+            self.snapshots[it] = self.states[:, :, POS].copy()
+        self._notify(self.callbacks.after_iteration, record)
+        self._judge(it)
+        return record
+
+    def _judge(self, it: int) -> None:
+        progress = Progress(
+            iteration=it,
+            scores=[-o for o in self._objectives],
+            elapsed=time.perf_counter() - self._started,
+            settled=self.schedule.settled_at(self.config.constraints, it),
+        )
+        for crit in self.criteria:
+            if crit(progress):
+                self.stop_reason = type(crit).__name__
+                return
+
+    def run(self) -> PlanResult:
+        """Step until the stopping criterion says stop; return the plan."""
+        while not self.done:
+            self.step()
+        return self.result()
+
+    # ------------------------------------------------------------------ the outcome
+
+    @property
+    def converged(self) -> bool:
+        """Whether the run stopped on a convergence test (not on an iteration or time limit)."""
+        return self.stop_reason == ObjectiveTolerance.__name__
+
+    def history(self) -> IterationHistory:
+        """The per-iteration record so far."""
+        obj0, time0, r0, gated0 = self._initial
+        recs = self.records
+        return IterationHistory(
+            objective=np.array([obj0, *(r.objective for r in recs)]),
+            estep_time=np.array([time0, *(r.estep_time for r in recs)]),
+            mstep_time=np.array([r.mstep_time for r in recs]),
+            solver_iterations=np.array([r.solver_iterations for r in recs], dtype=int),
+            r=np.array([r0, *(r.r for r in recs)]),
+            fallbacks=np.array([r.fallbacks for r in recs], dtype=int),
+            mstep_status=tuple(r.mstep_status for r in recs),
+            estep_gated=np.array([gated0, *(r.estep_gated for r in recs)], dtype=bool),
+            stop_reason=self.stop_reason or "",
+        )
+
+    def result(self) -> PlanResult:
+        """The plan of the current paths: assignment, history, final E-step, constraint reports."""
+        scenario, cfg = self.scenario, self.config
+        N, M = scenario.n_locales, scenario.n_platforms
+        assignment, visit_time = self.estep.map_assignment()
+        reports: tuple[Any, ...] = ()
+        if cfg.constraints and self.last_context is not None:
+            reports = tuple(c.violation(self.states, self.last_context) for c in cfg.constraints)
+        return PlanResult(
+            scenario=scenario,
+            states=self.states,
+            assignment=assignment,
+            visit_time=visit_time,
+            platform_prior=np.exp(self.log_k) if self.log_k is not None else np.full((N, M), 1.0 / M),
+            history=self.history(),
+            converged=self.converged,
+            wall_time=time.perf_counter() - self._started,
+            solver=cfg.solver,
+            snapshots=dict(self.snapshots),
+            constraints=tuple(cfg.constraints),
+            reports=reports,
+            estep=self.estep.summary(),
+            anneal=cfg.anneal.describe(),
+        )
+
+    def close(self) -> None:
+        """Release the M-step backend's threads and workspaces."""
+        self.mstep.close()
+
+    def __enter__(self) -> EMRun:
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, value: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()

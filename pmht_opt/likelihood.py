@@ -1,0 +1,202 @@
+"""Log-domain likelihoods of locales against path points: the arithmetic every E-step shares.
+
+With ``r = 0.01`` and distances of a few units the likelihoods ``exp(-d^2 / 2r)`` underflow, so
+everything is in the log domain. Arrays are kept two-dimensional, ``(N, T*M)`` with column
+``t*M + m``, so that each step is one ufunc pass. Squared distances are formed elementwise (no
+``|z|^2 - 2 z.p + |p|^2`` cancellation), the same way in the dense and the gated E-step and in the
+row recompute, so all give bit-identical log weights (ties among times or platforms are then broken
+alike).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from pmht_opt.exceptions import PmhtOptError
+
+_LOG_2PI = float(np.log(2.0 * np.pi))
+#: Above this coordinate magnitude the squared differences could overflow (the dense E-step then uses
+#: ``hypot``; the gated one is not tried).
+_SAFE_SCALE = 1e100
+#: Log weights this far below their locale's best give ``exp(.) = 0`` in float64 (dense E-step too).
+_UNDERFLOW = 746.0
+#: Elements per block of rows in the dense E-step (1 MiB of float64: the block and a temporary stay in
+#: a 4 MiB L2 cache).
+_BLOCK = 1 << 17
+
+
+def log_const(r: float, T: int, M: int, uniform_time: bool, uniform_platform: bool) -> float:
+    """``log(2 pi r)`` plus the log of the uniform priors' sizes: subtracted from every log weight."""
+    const = _LOG_2PI + math.log(r)
+    if uniform_time:
+        const += math.log(T)
+    if uniform_platform:
+        const += math.log(M)
+    return const
+
+
+def log_weights_from_d2(d2: np.ndarray, r: float, const: float) -> np.ndarray:
+    """``-d2 / 2r - const`` in place. The dense E-step, the gated one and the row recompute all use
+    this and the same elementwise ``(zx - px)^2 + (zy - py)^2``, so they give bit-identical log weights
+    (ties among times or platforms are then broken alike)."""
+    d2 *= -0.5 / r
+    d2 -= const
+    return d2
+
+
+@dataclass
+class EStepInputs:
+    """What a gated E-step was computed from: enough to recompute any row exactly."""
+
+    locales: np.ndarray
+    positions: np.ndarray
+    log_time_prior: np.ndarray | None
+    log_platform_prior: np.ndarray | None
+    r: float
+
+    def rows(self, lo: int, hi: int) -> np.ndarray:
+        """``w[lo:hi]`` as ``(hi - lo, T*M)``, computed as the dense E-step computes it (bit for bit)."""
+        M, T, _ = self.positions.shape
+        lt, lk = self.log_time_prior, self.log_platform_prior
+        out = np.empty((hi - lo, T * M))
+        for _ in dense_blocks(
+            self.locales[lo:hi],
+            self.positions,
+            None if lt is None else lt[lo:hi],
+            None if lk is None else lk[lo:hi],
+            self.r,
+            out,
+        ):
+            pass
+        return out
+
+
+def dense_blocks(
+    z: np.ndarray,
+    positions: np.ndarray,
+    log_tau: np.ndarray | None,
+    log_k: np.ndarray | None,
+    r: float,
+    out: np.ndarray,
+) -> Iterator[tuple[int, int, np.ndarray]]:
+    """Fill ``out (N, T*M)`` with the normalised weights of locales ``z (N, 2)`` against paths
+    ``positions (M, T, 2)``, a block of rows at a time; yields ``(i, j, log-normalisers of rows i..j)``
+    after each block, so a caller can accumulate sums while the block is in cache."""
+    M, T, _ = positions.shape
+    N = z.shape[0]
+    TM = T * M
+    p = np.ascontiguousarray(positions.transpose(1, 0, 2)).reshape(TM, 2)
+    const = log_const(r, T, M, log_tau is None, log_k is None)
+    # Blocks of rows small enough to stay in cache through every pass.
+    step = max(1, _BLOCK // TM)
+    tmp = np.empty((min(step, N), TM))
+    for i in range(0, N, step):
+        j = min(i + step, N)
+        lse = _dense_rows(
+            z[i:j],
+            p,
+            None if log_tau is None else log_tau[i:j],
+            None if log_k is None else log_k[i:j],
+            r,
+            const,
+            T,
+            M,
+            out[i:j],
+            tmp[: j - i],
+        )
+        yield i, j, lse
+
+
+def _dense_rows(
+    z: np.ndarray,
+    p: np.ndarray,
+    log_tau: np.ndarray | None,
+    log_k: np.ndarray | None,
+    r: float,
+    const: float,
+    T: int,
+    M: int,
+    out: np.ndarray,
+    tmp: np.ndarray,
+) -> np.ndarray:
+    """Normalised weights of locales ``z`` against the ``(T*M, 2)`` points ``p`` into ``out``; returns
+    their log-normalisers. ``tmp`` is scratch of ``out``'s shape. Every row is computed on its own, with
+    the same operations whatever the block: the E-step and the exact row recompute agree bit for bit."""
+    scale = max(float(np.max(np.abs(p))), float(np.max(np.abs(z))))
+    distance2 = None
+    if scale < _SAFE_SCALE:
+        np.subtract.outer(z[:, 0], p[:, 0], out=out)
+        out *= out
+        np.subtract.outer(z[:, 1], p[:, 1], out=tmp)
+        tmp *= tmp
+        out += tmp
+    else:
+        # Far-away paths (a diverged plan): hypot avoids the overflow of the squared coordinates.
+        np.hypot(z[:, None, 0] - p[None, :, 0], z[:, None, 1] - p[None, :, 1], out=out)
+        with np.errstate(over="ignore"):
+            out *= out
+        if not np.all(np.isfinite(out)):
+            distance2 = out.copy()
+    ll = log_weights_from_d2(out, r, const)
+    view = ll.reshape(-1, T, M)
+    if log_tau is not None:
+        view += log_tau[:, :, None]
+    if log_k is not None:
+        view += log_k[:, None, :]
+    mx = ll.max(axis=1)
+    bad = ~np.isfinite(mx)
+    if np.any(bad):
+        _limit_rows(ll, mx, bad, distance2, log_tau, log_k, T, M)
+    ll -= mx[:, None]
+    below = ll < -_UNDERFLOW
+    if np.count_nonzero(below) > below.size // 4:
+        # Mostly below -746, where exp is exactly 0 but takes numpy's slow path: skip those entries.
+        np.exp(ll, out=ll, where=~below)
+        ll[below] = 0.0
+    else:
+        np.exp(ll, out=ll)
+    s = ll.sum(axis=1)
+    ll *= (1.0 / s)[:, None]
+    lse = mx + np.log(s)
+    lse[bad] = -np.inf  # the likelihood of these rows underflows to exactly zero
+    return lse
+
+
+def _limit_rows(
+    ll: np.ndarray,
+    mx: np.ndarray,
+    bad: np.ndarray,
+    distance2: np.ndarray | None,
+    log_time_prior: np.ndarray | None,
+    log_platform_prior: np.ndarray | None,
+    T: int,
+    M: int,
+) -> None:
+    """Rows whose every log-likelihood is ``-inf``: every allowed pair is infinitely unlikely.
+
+    The weights' limit puts all mass on the nearest allowed (time, platform) pairs, which is what is
+    set here; the log-normaliser is ``-inf`` (the objective of such a plan is ``-inf``, not NaN).
+    """
+    rows = np.flatnonzero(bad)
+    allowed = np.ones((rows.size, T, M), dtype=bool)
+    if log_time_prior is not None:
+        allowed &= np.isfinite(log_time_prior[rows])[:, :, None]
+    if log_platform_prior is not None:
+        allowed &= np.isfinite(log_platform_prior[rows])[:, None, :]
+    allowed2 = allowed.reshape(rows.size, T * M)
+    if not np.all(allowed2.any(axis=1)):
+        raise PmhtOptError("A locale has a zero prior for every (time, platform) pair.")
+    if distance2 is None:
+        d2 = np.zeros((rows.size, T * M))
+    else:
+        d2 = distance2[rows]
+    d2 = np.where(allowed2, d2, np.inf)
+    best = d2.min(axis=1, keepdims=True)
+    winners = allowed2 & (d2 == best) if np.all(np.isfinite(best)) else allowed2
+    # log of an indicator: 0 where a winner, -inf elsewhere; the row then normalises over the winners.
+    ll[rows] = np.where(winners, 0.0, -np.inf)
+    mx[rows] = 0.0

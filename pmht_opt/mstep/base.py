@@ -1,0 +1,110 @@
+"""The contract every M-step backend meets: what goes in, what comes out, what it can impose."""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+import solvers
+from pmht_opt.constraints.base import Constraint, ConstraintContext
+from pmht_opt.scenario import Scenario
+
+
+@dataclass
+class MStepData:
+    """One M-step's input.
+
+    Attributes
+    ----------
+    W
+        ``(T, M)`` summed weights ``sum_n w[n, t, m]`` (t = 1..T).
+    WZ
+        ``(T, M, 2)`` weighted locale sums ``sum_n w[n, t, m] z_n``.
+    r
+        The fitting penalty's variance for this iteration.
+    ctx
+        What constraint rows are written from (linearisation point, E-step); ``None`` without
+        constraints.
+    active
+        Indices, into the backend's constraints, of those imposed in this M-step (the planner's
+        schedule decides).
+    """
+
+    W: np.ndarray
+    WZ: np.ndarray
+    r: float
+    ctx: ConstraintContext | None = None
+    active: tuple[int, ...] = ()
+
+    def synthetic(self) -> tuple[np.ndarray, np.ndarray]:
+        """Synthetic measurements ``WZ / W`` (zero where ``W == 0``) and their weights ``W``."""
+        W = self.W
+        with np.errstate(invalid="ignore", divide="ignore"):
+            zt = np.where(W[..., None] > 0, self.WZ / W[..., None], 0.0)
+        return zt, W
+
+
+@dataclass
+class MStepOutput:
+    """Paths ``(M, T+1, 6)`` including ``t = 0``, and how the solve went.
+
+    ``status`` is the library's status of the least successful platform solve (the backend's own
+    words in ``raw_status``); ``fallbacks`` counts the platforms whose solve needed a retry with other
+    settings.
+    """
+
+    states: np.ndarray
+    status: solvers.Status = solvers.Status.OPTIMAL
+    raw_status: str = "optimal"
+    iterations: int = 0
+    fallbacks: int = 0
+    info: dict[str, object] = field(default_factory=dict)
+
+
+class MStep(abc.ABC):
+    """One backend of the M-step, built for one scenario and reused across EM iterations.
+
+    Parameters
+    ----------
+    scenario
+        The scenario (starts, horizon, model).
+    settings
+        Options for the backend, passed on verbatim over this package's tuned defaults.
+    accept_inaccurate
+        Use answers the backend flags as inaccurate instead of raising ``SolverError``.
+    constraints
+        Every constraint of the run; :attr:`MStepData.active` says which are imposed in a solve.
+    """
+
+    #: Registry name.
+    name: ClassVar[str] = ""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        settings: dict[str, object] | None = None,
+        accept_inaccurate: bool = False,
+        constraints: tuple[Constraint, ...] = (),
+    ) -> None:
+        self.scenario = scenario
+        self.constraints = tuple(constraints)
+        self.model = scenario.model
+        self.settings = dict(settings or {})
+        self.accept_inaccurate = accept_inaccurate
+        self.T = scenario.horizon
+        self.M = scenario.n_platforms
+        self.x0 = scenario.initial_states
+
+    @abc.abstractmethod
+    def solve(self, data: MStepData) -> MStepOutput:
+        """Minimise ``J`` for these weights, subject to the constraints active in ``data``."""
+
+    def close(self) -> None:  # noqa: B027 - most backends hold nothing to release
+        """Release threads or solver workspaces held by this backend."""
+
+    def _with_start(self, body: np.ndarray) -> np.ndarray:
+        """Prepend the known initial states to ``(M, T, 6)`` paths."""
+        return np.concatenate([self.x0[:, None, :], body], axis=1)

@@ -1,0 +1,166 @@
+"""One platform's M-step QP: built once, its weights updated in place each iteration."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+import solvers
+from pmht_opt.exceptions import ConfigError, SolverError
+from pmht_opt.model import PX, PY, STATE_DIM, MotionModel
+from pmht_opt.mstep.formulation import QPLayout, dynamics_rows
+from pmht_opt.mstep.rows import ExtraRows, PlatformRows, assemble
+
+
+class PlatformQP:
+    """The M-step QP of one platform (:mod:`pmht_opt.mstep.formulation`), kept across iterations.
+
+    Constraint rows go below the dynamics, soft constraints' slacks after the platform's own variables.
+    While the rows stay the same (their key is unchanged) only the weights are pushed to the backend;
+    while their structure stays the same only the numbers are; when it changes (a visit moves to
+    another time step) the backend session is set up afresh.
+
+    The backend session is created at the first solve, with real weights: both backends compute their
+    scaling (equilibration) at setup, and a setup with every position weight at zero leaves Clarabel
+    badly scaled for every later update.
+    """
+
+    def __init__(
+        self,
+        model: MotionModel,
+        x0: np.ndarray,
+        horizon: int,
+        session_class: type[solvers.QPSession],
+        settings: dict[str, Any],
+        constrained_settings: dict[str, Any] | None = None,
+        retries: solvers.RetryChain = solvers.NO_RETRY,
+    ) -> None:
+        self.layout = lay = QPLayout(1, horizon)
+        self.session_class = session_class
+        self.settings = settings
+        self.constrained_settings = settings if constrained_settings is None else constrained_settings
+        self.retries = retries
+        t_idx = np.arange(1, horizon + 1)
+        self.px = lay.x(0, t_idx, PX)
+        self.py = lay.x(0, t_idx, PY)
+        #: QP column of each entry of the stacked states ``(x_1, ..., x_T)``.
+        self.col_map = lay.x(0, t_idx[:, None], np.arange(STATE_DIM)).ravel()
+        diag = np.zeros(lay.n)
+        stored = np.zeros(lay.n, dtype=bool)
+        stored[self.px] = True
+        stored[self.py] = True
+        u_idx = lay.u(0, t_idx[:, None], np.arange(STATE_DIM)).ravel()
+        stored[u_idx] = True
+        diag[u_idx] = 1.0
+        self.diag = diag
+        self.stored = np.flatnonzero(stored)
+        self.A_dyn, self.b_dyn = dynamics_rows(model, lay, x0[None, :])
+        self.problem: solvers.QPProblem | None = None
+        self.session: solvers.QPSession | None = None
+        self.extra: ExtraRows | None = None
+        self._pattern: tuple[object, ...] | None = None
+        self._rows_key: tuple[tuple[int, ...], ...] | None = None
+
+    def _P(self, n_slack: int) -> sp.csc_matrix:
+        # CSC arrays by hand so the position entries stay stored while their weight is zero; slack
+        # columns (if any) are empty.
+        n = self.layout.n
+        stored = np.zeros(n, dtype=bool)
+        stored[self.stored] = True
+        indptr = np.concatenate([[0], np.cumsum(stored), np.full(n_slack, stored.sum())])
+        return sp.csc_matrix((self.diag[self.stored], self.stored, indptr), shape=(n + n_slack, n + n_slack))
+
+    def _cost(self, W: np.ndarray, WZ: np.ndarray, r: float) -> np.ndarray:
+        scale = 1.0 / r
+        self.diag[self.px] = W * scale
+        self.diag[self.py] = W * scale
+        q = np.zeros(self.layout.n)
+        q[self.px] = -WZ[:, 0] * scale
+        q[self.py] = -WZ[:, 1] * scale
+        extra = self.extra
+        return q if extra is None or extra.n_slack == 0 else np.concatenate([q, extra.slack_cost])
+
+    def _constraints(self) -> tuple[sp.csc_matrix, np.ndarray, tuple[solvers.Cone, ...]]:
+        zero = solvers.Zero(self.A_dyn.shape[0])
+        extra = self.extra
+        if extra is None:
+            return self.A_dyn, self.b_dyn, (zero,)
+        A_dyn = self.A_dyn
+        if extra.n_slack:
+            indptr = np.concatenate([A_dyn.indptr, np.full(extra.n_slack, A_dyn.indptr[-1])])
+            A_dyn = sp.csc_matrix(
+                (A_dyn.data, A_dyn.indices, indptr), shape=(A_dyn.shape[0], extra.A.shape[1])
+            )
+        A = sp.vstack([A_dyn, extra.A], format="csc")
+        A.sort_indices()
+        return A, np.concatenate([self.b_dyn, extra.b]), (zero, *extra.cones)
+
+    @property
+    def options(self) -> dict[str, Any]:
+        """The settings in use: the constrained ones when there are constraint rows."""
+        return self.settings if self.extra is None else self.constrained_settings
+
+    def solve(
+        self, W: np.ndarray, WZ: np.ndarray, r: float, rows: PlatformRows | None = None
+    ) -> solvers.QPSolution:
+        """Solve for weights ``W (T,)``, weighted locale sums ``WZ (T, 2)`` and constraint rows."""
+        key = rows.key if rows is not None else ()
+        if self.session is not None and key == self._rows_key:  # the same rows: only the weights moved
+            q = self._cost(W, WZ, r)
+            self.session.update(P_data=self.diag[self.stored], q=q)
+            return self._retry(self.session.solve(), q)
+        self._rows_key = key
+        self.extra = assemble(rows.items, self.layout.n, self.col_map) if rows and rows.items else None
+        pattern = None if self.extra is None else self.extra.pattern_key()
+        q = self._cost(W, WZ, r)
+        A, b, cones = self._constraints()
+        if self.session is None or pattern != self._pattern:
+            self._pattern = pattern
+            n_slack = 0 if self.extra is None else self.extra.n_slack
+            self.problem = solvers.QPProblem(P=self._P(n_slack), q=q, A=A, b=b, cones=cones)
+            self.session = self._open(self.problem, self.options)
+        elif self.extra is None:
+            self.session.update(P_data=self.diag[self.stored], q=q)
+        else:
+            self.session.update(P_data=self.diag[self.stored], q=q, A_data=A.data, b=b)
+        return self._retry(self.session.solve(), q)
+
+    def _open(self, problem: solvers.QPProblem, options: dict[str, Any]) -> solvers.QPSession:
+        try:
+            return self.session_class(problem, **options)
+        except solvers.SettingsError as err:
+            raise ConfigError(f"solver_settings: {err}") from err
+        except solvers.QPError as err:
+            raise SolverError(f"cannot set up the M-step QP: {err}") from err
+
+    def _retry(self, sol: solvers.QPSolution, q: np.ndarray) -> solvers.QPSolution:
+        """Re-solve with the backend's slower, more robust settings, in turn, if the fast ones failed.
+
+        The set that solves is kept for this platform's later solves (its session, warm, replaces the
+        failed one), so a run does not pay for the failing settings every iteration.
+        """
+        if not self.retries.sets or sol.ok or sol.status in solvers.INFEASIBLE:
+            return sol
+        A, b, cones = self._constraints()
+        n_slack = 0 if self.extra is None else self.extra.n_slack
+        problem = solvers.QPProblem(P=self._P(n_slack), q=q, A=A, b=b, cones=cones)
+        last: list[solvers.QPSession] = []
+
+        def attempt(settings: dict[str, Any]) -> solvers.QPSolution:
+            last[:] = [self.session_class(problem, **settings)]
+            return last[0].solve()
+
+        out, used = solvers.retry_failed(sol, self.options, self.retries, attempt)
+        if used is not None:  # the last session opened is the one that solved
+            self.problem, self.session = problem, last[0]
+            if self.extra is None:
+                self.settings = used
+            else:
+                self.constrained_settings = used
+        return out
+
+    def slacks(self, x: np.ndarray) -> np.ndarray:
+        """The soft constraints' slack values in a solution vector."""
+        return x[self.layout.n :]

@@ -1,0 +1,134 @@
+"""The M-step QP through a :mod:`solvers` backend (``osqp`` or ``clarabel``), one QP per platform."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, ClassVar
+
+import numpy as np
+
+import solvers
+from pmht_opt.constraints.base import Constraint
+from pmht_opt.exceptions import InfeasibleError, SolverError, UnknownSolverError
+from pmht_opt.model import STATE_DIM
+from pmht_opt.mstep.base import MStep, MStepData, MStepOutput
+from pmht_opt.mstep.diagnosis import diagnose
+from pmht_opt.mstep.platform import PlatformQP
+from pmht_opt.mstep.rows import PlatformRows, RowBuilder
+from pmht_opt.mstep.tuning import CONSTRAINED_DEFAULTS, DEFAULTS, RETRIES
+from pmht_opt.scenario import Scenario
+
+
+def check_solution(sol: solvers.QPSolution, accept_inaccurate: bool, platform: int | None = None) -> None:
+    """Raise the project's error unless the backend stands behind ``sol``."""
+    if sol.usable(accept_inaccurate):
+        return
+    where = "" if platform is None else f" (platform {platform})"
+    if sol.status in solvers.INFEASIBLE:
+        raise InfeasibleError(
+            f"{sol.backend}: the M-step constraints are infeasible{where} (status {sol.raw_status}).",
+            backend=sol.backend,
+            status=sol.raw_status,
+        )
+    hint = "" if accept_inaccurate else " (pass accept_inaccurate=True to use inaccurate solutions)"
+    raise SolverError(
+        f"{sol.backend}: the M-step solve failed{where} with status {sol.raw_status!r}{hint}.",
+        backend=sol.backend,
+        status=sol.raw_status,
+    )
+
+
+class QPMStep(MStep):
+    """The M-step QP of :mod:`pmht_opt.mstep.formulation` through a :mod:`solvers` session.
+
+    Without coupling constraints the QP separates by platform, so each platform is its own QP
+    (:class:`~pmht_opt.mstep.platform.PlatformQP`), and the platforms are solved concurrently on
+    ``threads`` threads (both backends release the GIL while they solve). Every constraint kind binds
+    one platform at a time, so constraints keep this separation.
+    """
+
+    name: ClassVar[str] = "qp"
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        settings: dict[str, Any] | None = None,
+        accept_inaccurate: bool = False,
+        solver: str = "clarabel",
+        threads: int = 1,
+        constraints: tuple[Constraint, ...] = (),
+    ) -> None:
+        super().__init__(scenario, settings, accept_inaccurate, constraints)
+        self.solver = solver
+        try:
+            self.session_class = solvers.get_session_class(solver)
+        except solvers.UnknownSolverError as err:
+            raise UnknownSolverError(str(err)) from err
+        self.rows = RowBuilder(self.constraints, conic=self.session_class.supports_soc)
+        self.options = {**DEFAULTS.get(solver, {}), **self.settings}
+        self.constrained_options = {**CONSTRAINED_DEFAULTS.get(solver, {}), **self.settings}
+        # Sets touching a setting the caller chose are skipped: do not second-guess the caller.
+        retries = RETRIES.get(solver, solvers.NO_RETRY).without(self.settings)
+        self.blocks = [self._platform(m, retries) for m in range(self.M)]
+        self.threads = max(1, min(int(threads), self.M))
+        self._pool: ThreadPoolExecutor | None = None
+
+    def _platform(self, m: int, retries: solvers.RetryChain = solvers.NO_RETRY) -> PlatformQP:
+        return PlatformQP(
+            self.model,
+            self.x0[m],
+            self.T,
+            self.session_class,
+            self.options,
+            self.constrained_options,
+            retries,
+        )
+
+    def solve(self, data: MStepData) -> MStepOutput:
+        rows = self.rows.rows(data.ctx, data.active)
+        # A platform with no weight and no constraint has the unique answer u = 0 (it coasts from its
+        # start); first-order solvers struggle on this degenerate QP (its dual residual has no scale),
+        # so the answer is written down instead of solved for.
+        idle = ~np.any(data.W > 0, axis=0)
+        for m in rows:
+            idle[m] = False
+        active = [int(m) for m in np.flatnonzero(~idle)]
+
+        def one(m: int) -> solvers.QPSolution:
+            return self.blocks[m].solve(data.W[:, m], data.WZ[:, m], data.r, rows.get(m))
+
+        if self.threads > 1 and len(active) > 1:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="pmht-mstep")
+            sols = list(self._pool.map(one, active))
+        else:
+            sols = [one(m) for m in active]
+        body = np.empty((self.M, self.T, STATE_DIM))
+        for m in np.flatnonzero(idle).tolist():
+            body[m] = self.model.propagate(self.x0[m], self.T)[1:]
+        for m, sol in zip(active, sols, strict=True):
+            platform_rows = rows.get(m)
+            if sol.status in solvers.INFEASIBLE and platform_rows is not None and platform_rows.items:
+                raise self._diagnose(m, data, platform_rows, sol)
+            check_solution(sol, self.accept_inaccurate, platform=m)
+            assert sol.x is not None
+            body[m] = self.blocks[m].layout.states(sol.x[: self.blocks[m].layout.n])[0]
+        out = MStepOutput(
+            states=self._with_start(body),
+            iterations=int(sum(s.iterations for s in sols)),
+            fallbacks=sum("fallback" in s.info for s in sols),
+        )
+        if sols:
+            worst = max(sols, key=lambda s: (s.status is not solvers.Status.OPTIMAL, s.iterations))
+            out.status, out.raw_status = worst.status, worst.raw_status
+        return out
+
+    def _diagnose(
+        self, m: int, data: MStepData, rows: PlatformRows, sol: solvers.QPSolution
+    ) -> InfeasibleError:
+        return diagnose(self._platform(m), m, data.W[:, m], data.WZ[:, m], data.r, rows, sol)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None

@@ -1,0 +1,274 @@
+"""Constraint rows for the M-step: which blocks are imposed, in which form, and the one soft rule.
+
+:class:`RowBuilder` turns the constraints active in an iteration into per-platform lists of
+:class:`Imposed` blocks, in the form the backend can take (second-order cones, or their inner
+polygons for a backend with linear rows only), with a key that changes exactly when the rows can
+have changed: the rows of a static constraint are written once per run. :func:`assemble` turns a
+platform's blocks into rows of a :mod:`solvers` problem ``A x + s = b, s in K`` on that QP's own
+variable vector.
+
+Soft blocks (:func:`assemble`) follow one rule, an exact L1 penalty: each unit (a linear row, a whole
+cone, or the rows of a polygon standing for one cone) gets one slack ``s >= 0`` that relaxes it, and
+``weight * s`` joins the cost. A relaxed inequality reads ``h - G z + s >= 0``, a relaxed equality
+``|h - G z| <= s`` and a relaxed cone ``(h - G z)_0 + s >= ||(h - G z)_1..||``. Native cvxpy constraints
+follow the same rule (:func:`soften_cvxpy`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+import solvers
+from pmht_opt.constraints.base import Constraint, ConstraintContext
+from pmht_opt.constraints.blocks import Block, inner_polygon, with_span_pattern
+
+
+@dataclass
+class Imposed:
+    """A block, the name of the constraint that wrote it, and how it is imposed."""
+
+    block: Block
+    name: str
+    soft: bool = False
+    weight: float = 0.0
+
+    def relaxed(self, weight: float) -> Imposed:
+        """The same block imposed softly with ``weight`` (for infeasibility diagnoses)."""
+        return Imposed(self.block, self.name, True, weight)
+
+
+@dataclass
+class PlatformRows:
+    """One platform's blocks for one M-step, and a key: equal keys mean identical rows."""
+
+    items: list[Imposed]
+    key: tuple[tuple[int, ...], ...]
+
+
+class RowBuilder:
+    """The blocks of the active constraints, per platform, in the form a backend takes.
+
+    Parameters
+    ----------
+    constraints
+        Every constraint of the run.
+    conic
+        Whether the backend takes second-order cones; if not, cones become inner polygons.
+    """
+
+    def __init__(self, constraints: Sequence[Constraint], conic: bool) -> None:
+        self.constraints = tuple(constraints)
+        self.conic = conic
+        self._static: dict[int, list[Imposed]] = {}
+
+    def _impose(self, con: Constraint, ctx: ConstraintContext) -> list[Imposed]:
+        out = []
+        for blk in con.blocks(ctx):
+            if blk.kind == "soc" and not self.conic:
+                blk = inner_polygon(blk)
+            out.append(Imposed(blk, con.name, con.soft, con.weight))
+        return out
+
+    def rows(self, ctx: ConstraintContext | None, active: Sequence[int]) -> dict[int, PlatformRows]:
+        """The rows of the constraints ``active`` (indices) for the iterate in ``ctx``, per platform.
+
+        A static constraint's rows are written at its first use and reused; a dynamic one's are
+        written afresh for every iteration, and its key part names the iteration.
+        """
+        out: dict[int, PlatformRows] = {}
+        if ctx is None or not active:
+            return out
+        for i in active:
+            con = self.constraints[i]
+            tag: tuple[int, ...]
+            if con.dynamic:
+                items, tag = self._impose(con, ctx), (i, ctx.iteration)
+            else:
+                if i not in self._static:
+                    self._static[i] = self._impose(con, ctx)
+                items, tag = self._static[i], (i,)
+            for item in items:
+                rows = out.setdefault(item.block.platform, PlatformRows([], ()))
+                rows.items.append(item)
+                if not rows.key or rows.key[-1] != tag:
+                    rows.key = (*rows.key, tag)
+        return out
+
+
+@dataclass
+class SlackOwner:
+    """Where one slack variable came from, for reports and infeasibility diagnoses."""
+
+    constraint: str
+    platform: int
+    time: int
+    label: str | None
+
+
+@dataclass
+class ExtraRows:
+    """Rows to append below a QP's own constraints.
+
+    ``A`` has ``n_vars + n_slack`` columns; ``cones`` covers its rows in order.
+    """
+
+    A: sp.csc_matrix
+    b: np.ndarray
+    cones: list[solvers.Cone]
+    n_slack: int
+    slack_cost: np.ndarray
+    slack_owner: list[SlackOwner] = field(default_factory=list)
+
+    def pattern_key(self) -> tuple[object, ...]:
+        """Everything that fixes the structure (not the numbers) of these rows."""
+        return (
+            self.n_slack,
+            self.A.shape,
+            self.A.indptr.tobytes(),
+            self.A.indices.tobytes(),
+            tuple((c.kind, c.dim) for c in self.cones),
+        )
+
+
+class _Rows:
+    """Triplets of the rows being assembled."""
+
+    def __init__(self, col_map: np.ndarray) -> None:
+        self.col_map = col_map
+        self.rows: list[np.ndarray] = []
+        self.cols: list[np.ndarray] = []
+        self.vals: list[np.ndarray] = []
+        self.b: list[np.ndarray] = []
+        self.cones: list[solvers.Cone] = []
+        self.count = 0
+
+    def block(self, G: sp.coo_matrix, sign: float, h: np.ndarray) -> int:
+        """Rows ``sign * (h - G z)``; returns the first row's index."""
+        start = self.count
+        self.rows.append(G.row + start)
+        self.cols.append(self.col_map[G.col])
+        self.vals.append(sign * G.data)
+        self.b.append(sign * h)
+        self.count += G.shape[0]
+        return start
+
+    def slack(self, rows: np.ndarray, slacks: np.ndarray) -> None:
+        """Add slack column ``slacks[i]`` with coefficient +1 to ``b - A x`` of row ``rows[i]``."""
+        self.rows.append(rows)
+        self.cols.append(slacks)
+        self.vals.append(-np.ones(rows.size))
+
+    def nonneg_slacks(self, slacks: np.ndarray) -> None:
+        """Rows ``s >= 0`` for the given slack columns."""
+        start = self.count
+        self.slack(start + np.arange(slacks.size), slacks)
+        self.b.append(np.zeros(slacks.size))
+        self.count += slacks.size
+        self.cones.append(solvers.Nonneg(slacks.size))
+
+
+def assemble(imposed: Sequence[Imposed], n_vars: int, col_map: np.ndarray) -> ExtraRows:
+    """Rows for ``imposed`` blocks on a QP with ``n_vars`` variables; ``col_map[j]`` is the QP column of
+    stacked-state entry ``j``. Soft blocks get slack columns after the QP's own (module docstring)."""
+    n_slack = sum(i.block.units // i.block.group for i in imposed if i.soft)
+    out = _Rows(col_map)
+    slack_cost = np.zeros(n_slack)
+    owners: list[SlackOwner] = []
+    slack0 = n_vars
+    for item in imposed:
+        blk = item.block
+        G = with_span_pattern(blk).tocoo()
+        k = G.shape[0]
+        if not item.soft:
+            out.block(G, 1.0, blk.h)
+            out.cones.extend(_hard_cones(blk.kind, k, blk.dim))
+            continue
+        n = blk.units // blk.group
+        sl = slack0 + np.arange(n)
+        slack0 += n
+        slack_cost[sl - n_vars] = item.weight
+        firsts = np.arange(n) * blk.group
+        owners.extend(
+            SlackOwner(
+                item.name, blk.platform, int(blk.times[u]), None if blk.labels is None else blk.labels[u]
+            )
+            for u in firsts.tolist()
+        )
+        start = out.block(G, 1.0, blk.h)
+        if blk.kind == "zero":  # |h - G z| <= s: two inequality rows, s >= 0 implied
+            out.block(G, -1.0, blk.h)
+            out.slack(start + np.arange(k), np.repeat(sl, blk.group))
+            out.slack(start + k + np.arange(k), np.repeat(sl, blk.group))
+            out.cones.append(solvers.Nonneg(2 * k))
+        elif blk.kind == "nonneg":  # h - G z + s >= 0, s >= 0
+            out.slack(start + np.arange(k), np.repeat(sl, blk.group))
+            out.cones.append(solvers.Nonneg(k))
+            out.nonneg_slacks(sl)
+        else:  # (h - G z)_0 + s >= ||(h - G z)_1..||, s >= 0
+            out.slack(start + blk.dim * np.arange(blk.units), sl)
+            out.cones.extend(solvers.SOC(blk.dim) for _ in range(blk.units))
+            out.nonneg_slacks(sl)
+    width = n_vars + n_slack
+    if out.rows:
+        A = sp.csc_matrix(
+            (np.concatenate(out.vals), (np.concatenate(out.rows), np.concatenate(out.cols))),
+            shape=(out.count, width),
+        )
+        b = np.concatenate(out.b)
+    else:
+        A = sp.csc_matrix((0, width))
+        b = np.zeros(0)
+    A.sort_indices()
+    return ExtraRows(
+        A=A, b=b, cones=_merge(out.cones), n_slack=n_slack, slack_cost=slack_cost, slack_owner=owners
+    )
+
+
+def _hard_cones(kind: str, rows: int, dim: int) -> list[solvers.Cone]:
+    if kind == "zero":
+        return [solvers.Zero(rows)]
+    if kind == "nonneg":
+        return [solvers.Nonneg(rows)]
+    return [solvers.SOC(dim) for _ in range(rows // dim)]
+
+
+def _merge(cones: list[solvers.Cone]) -> list[solvers.Cone]:
+    """Merge neighbouring linear cones of one kind (fewer, larger cones for the backends)."""
+    out: list[solvers.Cone] = []
+    for c in cones:
+        if out and c.kind == out[-1].kind and c.kind in ("zero", "nonneg"):
+            out[-1] = solvers.Cone(c.kind, out[-1].dim + c.dim)
+        else:
+            out.append(c)
+    return out
+
+
+def soften_cvxpy(items: Sequence[Any], weight: float) -> tuple[list[Any], Any]:
+    """Native cvxpy constraints relaxed by the module's rule: ``(constraints, penalty)``.
+
+    Each entry of an inequality ``lhs <= rhs`` gets a slack ``s >= 0`` with ``lhs - rhs <= s``, each
+    entry of an equality ``|lhs - rhs| <= s``; the penalty is ``weight * sum(s)``. Other constraint
+    types have no unit violation to relax and raise ``TypeError``.
+    """
+    import cvxpy as cp
+
+    constraints: list[Any] = []
+    penalty: Any = 0
+    for c in items:
+        if isinstance(c, cp.constraints.Inequality):
+            gap = c.args[0] - c.args[1]
+            s = cp.Variable(gap.shape, nonneg=True)
+            constraints.append(gap <= s)
+        elif isinstance(c, cp.constraints.Equality):
+            gap = c.args[0] - c.args[1]
+            s = cp.Variable(gap.shape, nonneg=True)
+            constraints += [gap <= s, -gap <= s]
+        else:
+            raise TypeError(type(c).__name__)
+        penalty += weight * cp.sum(s)
+    return constraints, penalty

@@ -1,0 +1,67 @@
+"""Backend settings of the M-step, as data: the defaults, the constrained defaults and the retries.
+
+Why each value (figures in docs/decisions.md):
+
+* OSQP, unconstrained: residuals of the dynamics integrate into positions over hundreds of steps, so
+  ADMM must run to 1e-9; with ``rho = 1`` it gets there in fewer iterations than with its default, and
+  polishing needs many refinement steps for the same accuracy, which cost more.
+* OSQP, constrained: at 1e-9 ADMM needs tens of thousands of iterations with inequality rows; at 1e-5
+  with polishing it solves limits, bounds, obstacles and terminal conditions. OSQP 1.1's duality-gap
+  test keeps such solves at "solved inaccurate", so it is off. Polishing recovers the exact answer when
+  ADMM found the active set; on speed limits positions can stay about 1e-3 from the optimum, so use
+  clarabel for exact constrained plans.
+* Clarabel: iterative refinement of the KKT solves roughly doubles the time of a constrained M-step and
+  is not needed on well-scaled ones, so it is off by default and the first retry.
+* Retries (:class:`solvers.RetryChain`), tried in turn when a solve fails without an infeasibility
+  verdict; a set that touches a setting the caller chose is skipped, and the set that solves is kept
+  for that platform's later solves. Clarabel: iterative refinement (rescues "insufficient progress"
+  on ill-scaled constrained M-steps). OSQP: a fixed ``rho`` of 100, then 30 (adaptive ``rho`` can
+  stall where a manoeuvre is first forced on the paths).
+* cvxpy with Clarabel, unconstrained: cvxpy's form keeps the raw penalty weights and its answers are
+  less precise than the clarabel backend's; some M-steps end "almost solved" with Clarabel's defaults.
+  The retries are a smaller static regularisation, then no equilibration (the smaller regularisation
+  first was more precise per solve but let the EM objective fall once while reporting optimal).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from solvers import RetryChain
+
+#: Options of the unconstrained M-step QP per backend (the caller's settings override them).
+DEFAULTS: dict[str, dict[str, Any]] = {
+    "osqp": {
+        "eps_abs": 1e-9,
+        "eps_rel": 1e-9,
+        "rho": 1.0,
+        "polishing": False,
+        "check_termination": 10,
+    },
+    "clarabel": {"iterative_refinement_enable": False},
+}
+
+#: Options for platforms whose M-step has constraint rows.
+CONSTRAINED_DEFAULTS: dict[str, dict[str, Any]] = {
+    "osqp": {
+        "eps_abs": 1e-5,
+        "eps_rel": 1e-5,
+        "rho": 1.0,
+        "polishing": True,
+        "polish_refine_iter": 10,
+        "check_dualgap": False,
+        "check_termination": 25,
+    },
+    "clarabel": DEFAULTS["clarabel"],
+}
+
+#: Settings tried in turn after a failed QP solve.
+RETRIES: dict[str, RetryChain] = {
+    "clarabel": RetryChain(({"iterative_refinement_enable": True},)),
+    "osqp": RetryChain(({"rho": 100.0, "adaptive_rho": False}, {"rho": 30.0, "adaptive_rho": False})),
+}
+
+#: Settings tried in turn after a failed unconstrained cvxpy solve with Clarabel inside.
+CVXPY_CLARABEL_RETRIES = RetryChain(
+    ({"static_regularization_constant": 1e-10}, {"equilibrate_enable": False})
+)

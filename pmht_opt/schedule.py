@@ -1,0 +1,69 @@
+"""The one owner of "what happens at iteration i" of an EM run: the penalty ``r``, whether annealing
+is over, and which constraints are imposed."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from pmht_opt.anneal import Anneal
+from pmht_opt.constraints.base import Constraint
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """Per-iteration answers for a run of ``max_iter`` iterations.
+
+    Attributes
+    ----------
+    r
+        ``(max_iter,)``: ``r[i - 1]`` is iteration ``i``'s penalty, used by its E-step and M-step.
+    settled
+        The first iteration from which every iteration uses the scenario's ``r`` (1 without annealing;
+        ``max_iter + 1`` if the schedule never settles): annealing is over from there, and without
+        constraints the EM objective never decreases from that iteration on.
+    """
+
+    r: np.ndarray
+    settled: int
+
+    @classmethod
+    def of(cls, anneal: Anneal, r: float, max_iter: int) -> Schedule:
+        """The schedule of annealing ``anneal`` towards the scenario's ``r`` over ``max_iter`` iterations."""
+        values = anneal.values(r, max_iter)
+        off = np.nonzero(values != r)[0]
+        return cls(values, int(off[-1]) + 2 if off.size else 1)
+
+    @property
+    def max_iter(self) -> int:
+        """The run's iteration budget."""
+        return int(self.r.shape[0])
+
+    def r_at(self, iteration: int) -> float:
+        """The penalty of iteration ``iteration`` (``1..max_iter``)."""
+        return float(self.r[iteration - 1])
+
+    def imposes(self, constraint: Constraint, iteration: int) -> bool:
+        """Whether ``constraint`` is imposed in iteration ``iteration``.
+
+        A constraint without a warm-up is imposed throughout. One with ``warmup = k`` waits ``k``
+        iterations after annealing ends, but is always imposed on the last iteration, so the returned
+        plan has it: from iteration ``min(settled - 1 + k, max_iter - 1) + 1`` on.
+        """
+        if constraint.warmup is None:
+            return True
+        return iteration > min(self.settled - 1 + constraint.warmup, self.max_iter - 1)
+
+    def active(self, constraints: Sequence[Constraint], iteration: int) -> tuple[int, ...]:
+        """Indices of the ``constraints`` imposed in ``iteration``."""
+        return tuple(i for i, c in enumerate(constraints) if self.imposes(c, iteration))
+
+    def settled_at(self, constraints: Sequence[Constraint], iteration: int) -> bool:
+        """Whether the run is in its final regime after ``iteration``: annealing over and every
+        constraint imposed from the next iteration on. Convergence is only judged from there (the
+        first iteration at the final ``r`` still compares against an objective at another ``r``)."""
+        if iteration <= self.settled:
+            return False
+        return all(self.imposes(c, iteration + 1) for c in constraints)
