@@ -85,39 +85,12 @@ def estep_gated(
     r: float,
     margin: float,
 ) -> GatedWeights | None:
-    """The gated E-step (module docstring), or ``None`` where the dense one should run instead.
-
-    Candidates come from whichever is smaller: the radius queries, or the support of the priors (all
-    triples with a non-zero prior, when the priors confine each locale to a few times and platforms,
-    as in :func:`~pmht_opt.plan_smoothed`).
-    """
-    M, T, _ = positions.shape
-    N = z.shape[0]
-    scale = max(float(np.max(np.abs(positions))), float(np.max(np.abs(z))))
-    if not scale < _SAFE_SCALE:  # also NaN
-        return None
-    budget = GATE_MAX_FRACTION * N * T * M
-    # Cheap first look: a disc of the gate's radius around every locale already covers this fraction
-    # of the area the locales and paths span (the candidates measured are about twice that).
-    lo = np.minimum(z.min(axis=0), positions.min(axis=(0, 1)))
-    hi = np.maximum(z.max(axis=0), positions.max(axis=(0, 1)))
-    area = float(np.prod(hi - lo))
-    if area > 0 and math.pi * 2.0 * r * margin > GATE_MAX_FRACTION * area and log_tau is None:
-        return None
-    n_times = np.isfinite(log_tau).sum(axis=1) if log_tau is not None else np.full(N, T)
-    n_plats = np.isfinite(log_k).sum(axis=1) if log_k is not None else np.full(N, M)
-    support = float(np.sum(n_times * n_plats))
-    tree = _TreeCandidates(z, positions, log_tau, log_k, r, margin)
-    estimate = tree.estimate()
-    if min(support, estimate) > budget:
-        return None
-    found: Candidates | None
-    if support <= estimate:
-        found = _support_candidates(log_tau, log_k, N, T, M)
-    else:
-        found = tree.candidates(budget)
+    """The gated E-step (module docstring), or ``None`` where the dense one should run instead."""
+    found = _candidates(z, positions, log_tau, log_k, r, margin)
     if found is None or found[0].size == 0:
         return None
+    M, T, _ = positions.shape
+    N = z.shape[0]
     row, t, plat, seg_count, seg_row = found
     # The candidates' log weights, with the dense E-step's arithmetic (bit for bit the same).
     const = log_const(r, T, M, log_tau is None, log_k is None)
@@ -149,19 +122,73 @@ def estep_gated(
     np.exp(a, out=a)
     s = np.bincount(row, weights=a, minlength=N)
     a *= (1.0 / s)[row]
-    lse = best + np.log(s)
-    col = t * M + plat
+    return _assemble(
+        z, row, t * M + plat, a, best + np.log(s), T, M, EStepInputs(z, positions, log_tau, log_k, r)
+    )
+
+
+def _candidates(
+    z: np.ndarray,
+    positions: np.ndarray,
+    log_tau: np.ndarray | None,
+    log_k: np.ndarray | None,
+    r: float,
+    margin: float,
+) -> Candidates | None:
+    """The triples worth evaluating, or ``None`` where the gate would keep too many to pay.
+
+    Candidates come from whichever is smaller: the radius queries, or the support of the priors (all
+    triples with a non-zero prior, when the priors confine each locale to a few times and platforms,
+    as in :func:`~pmht_opt.plan_smoothed`).
+    """
+    M, T, _ = positions.shape
+    N = z.shape[0]
+    scale = max(float(np.max(np.abs(positions))), float(np.max(np.abs(z))))
+    if not scale < _SAFE_SCALE:  # also NaN
+        return None
+    budget = GATE_MAX_FRACTION * N * T * M
+    # Cheap first look: a disc of the gate's radius around every locale already covers this fraction
+    # of the area the locales and paths span.
+    lo = np.minimum(z.min(axis=0), positions.min(axis=(0, 1)))
+    hi = np.maximum(z.max(axis=0), positions.max(axis=(0, 1)))
+    area = float(np.prod(hi - lo))
+    if area > 0 and math.pi * 2.0 * r * margin > GATE_MAX_FRACTION * area and log_tau is None:
+        return None
+    n_times = np.isfinite(log_tau).sum(axis=1) if log_tau is not None else np.full(N, T)
+    n_plats = np.isfinite(log_k).sum(axis=1) if log_k is not None else np.full(N, M)
+    support = float(np.sum(n_times * n_plats))
+    tree = _TreeCandidates(z, positions, log_tau, log_k, r, margin)
+    estimate = tree.estimate()
+    if min(support, estimate) > budget:
+        return None
+    if support <= estimate:
+        return _support_candidates(log_tau, log_k, N, T, M)
+    return tree.candidates(budget)
+
+
+def _assemble(
+    z: np.ndarray,
+    row: np.ndarray,
+    col: np.ndarray,
+    w: np.ndarray,
+    lse: np.ndarray,
+    T: int,
+    M: int,
+    inputs: EStepInputs,
+) -> GatedWeights:
+    """Weights ``w`` of triples at ``(row, col)`` as CSR with the dense layout, and their sums."""
+    N = z.shape[0]
     TM = T * M
-    W = np.bincount(col, weights=a, minlength=TM).reshape(T, M)
+    W = np.bincount(col, weights=w, minlength=TM).reshape(T, M)
     WZ = np.empty((T, M, 2))
-    WZ[:, :, 0] = np.bincount(col, weights=a * z[row, 0], minlength=TM).reshape(T, M)
-    WZ[:, :, 1] = np.bincount(col, weights=a * z[row, 1], minlength=TM).reshape(T, M)
+    WZ[:, :, 0] = np.bincount(col, weights=w * z[row, 0], minlength=TM).reshape(T, M)
+    WZ[:, :, 1] = np.bincount(col, weights=w * z[row, 1], minlength=TM).reshape(T, M)
     # CSR: the candidates are platform-major, so a stable sort by row is a merge of M sorted runs.
     order = np.argsort(row, kind="stable")
     indptr = np.zeros(N + 1, dtype=np.intp)
     np.cumsum(np.bincount(row, minlength=N), out=indptr[1:])
-    weights = sp.csr_matrix((a[order], col[order], indptr), shape=(N, TM))
-    return GatedWeights(weights, W, WZ, lse, EStepInputs(z, positions, log_tau, log_k, r))
+    weights = sp.csr_matrix((w[order], col[order], indptr), shape=(N, TM))
+    return GatedWeights(weights, W, WZ, lse, inputs)
 
 
 Candidates = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]

@@ -61,9 +61,9 @@ class Schedule:
         return tuple(i for i, c in enumerate(constraints) if self.imposes(c, iteration))
 
     def settled_at(self, constraints: Sequence[Constraint], iteration: int) -> bool:
-        """Whether the run is in its final regime after ``iteration``: annealing over and every
-        constraint imposed from the next iteration on. Convergence is only judged from there (the
-        first iteration at the final ``r`` still compares against an objective at another ``r``)."""
+        """Whether ``iteration`` and the one before ran in the final regime: at the scenario's ``r``
+        and with every constraint imposed. Convergence is only judged from there, so the last two
+        objectives compared were computed alike and the returned plan has every constraint."""
         if iteration <= self.settled:
             return False
-        return all(self.imposes(c, iteration + 1) for c in constraints)
+        return all(self.imposes(c, iteration - 1) for c in constraints)

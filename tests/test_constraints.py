@@ -301,3 +301,49 @@ def test_obstacle_report_counts_cutting_segments() -> None:
     assert rep.details["segment_cuts"] == 1 and rep.details["first_segment_cut"] == (0, 1)
     sq = PolygonObstacle([(4, 4), (6, 4), (6, 6), (4, 6)])
     assert sq.violation(states, ctx).details["segment_cuts"] == 1
+
+
+# ---------------------------------------------------------------- blocks and the soft rule
+
+
+def test_inner_polygon_of_a_cone_block_is_inscribed() -> None:
+    from pmht_opt.constraints.blocks import disc_block, inner_polygon
+
+    T = 3
+    blk = disc_block(0, T, np.array([2]), (0, 3), np.array([[1.0, 2.0]]), np.array([0.5]), sides=8)
+    poly = inner_polygon(blk)
+    assert poly.kind == "nonneg" and poly.units == 8 and poly.group == 8
+    angles = 2 * np.pi * (np.arange(8) + 0.5) / 8
+    for radius, inside in ((0.5 * np.cos(np.pi / 8) - 1e-9, True), (0.5 + 1e-9, False)):
+        for a in angles:
+            z = np.zeros(6 * T)
+            z[6 + 0], z[6 + 3] = 1.0 + radius * np.cos(a), 2.0 + radius * np.sin(a)
+            assert bool(np.all(poly.residual(z) == 0)) is inside
+            if inside:
+                assert blk.residual(z)[0] == 0  # the inner polygon implies the cone
+    # The polygon's vertices lie on the circle, between the face normals 2 pi k / 8.
+    z = np.zeros(6 * T)
+    z[6], z[9] = 1.0 + 0.5 * np.cos(np.pi / 8), 2.0 + 0.5 * np.sin(np.pi / 8)
+    assert np.max(poly.residual(z)) < 1e-12 and blk.residual(z)[0] < 1e-12
+
+
+def test_span_pattern_keeps_one_sparsity_for_moving_rows() -> None:
+    from pmht_opt.constraints.blocks import disc_block, with_span_pattern
+
+    early = disc_block(0, 10, np.array([3]), (0, 3), np.zeros((1, 2)), np.ones(1))
+    late = disc_block(0, 10, np.array([6]), (0, 3), np.zeros((1, 2)), np.ones(1))
+    early.span = late.span = np.array([[2, 7]])
+    a, b = with_span_pattern(early), with_span_pattern(late)
+    assert (a != 0).nnz == (b != 0).nnz == 2
+    np.testing.assert_array_equal(a.indices, b.indices)
+    np.testing.assert_array_equal(a.indptr, b.indptr)
+
+
+def test_soft_inequalities_cost_nothing_when_met() -> None:
+    # A soft keep-out disc far from every path is inactive: the plan equals the unconstrained one.
+    # (An unbounded slack would reward keeping away from it instead.)
+    sc = _small()
+    free = plan_pmht(sc, PMHTConfig(max_iter=3, anneal=None))
+    far = CircleObstacle((30.0, 30.0), 1.0, soft=True, weight=1e3)
+    soft = plan_pmht(sc, PMHTConfig(max_iter=3, anneal=None, constraints=[far]))
+    assert np.max(np.abs(soft.positions - free.positions)) < 1e-6

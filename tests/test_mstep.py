@@ -143,3 +143,64 @@ def test_a_plan_records_fallback_solves(scenario_a: po.Scenario) -> None:
     res = po.plan_pmht(scenario_a, po.PMHTConfig(solver="osqp", max_iter=2, anneal=None))
     assert res.history.fallbacks.shape == (2,) and res.history.fallbacks.dtype.kind == "i"
     assert res.metrics()["solver_fallbacks"] == int(res.history.fallbacks.sum())
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"W": np.zeros((3, 4))}, "W: expected shape"),
+        ({"W": -np.ones((500, 4))}, "W: expected non-negative"),
+        ({"WZ": np.full((500, 4, 2), np.nan)}, "WZ: contains NaN"),
+        ({"r": 0.0}, "r: expected a finite positive"),
+        ({"r": "x"}, "r: expected a finite positive"),
+        ({"solver": "gurobi"}, "solver: unknown solver 'gurobi'"),
+        ({"constraints": ["speed"]}, "constraints: expected"),
+        ({"constraints": [po.VisitAll(0.1)]}, "E-step"),
+        ({"solver": "kalman", "constraints": [po.SpeedLimit(0.1)]}, "kalman backend"),
+    ],
+)
+def test_solve_mstep_checks_its_input(scenario_a: po.Scenario, kwargs: dict, field: str) -> None:
+    args = {"W": np.ones((500, 4)), "WZ": np.ones((500, 4, 2)), "r": 0.01, **kwargs}
+    with pytest.raises(po.ConfigError, match=field):
+        po.solve_mstep(scenario_a, **args)
+
+
+def test_solve_mstep_with_constraints_meets_them(scenario_a: po.Scenario) -> None:
+    data = random_weights(scenario_a, np.random.default_rng(5), 0.5)
+    free = po.solve_mstep(scenario_a, data.W, data.WZ, data.r)
+    vmax = 0.5 * float(np.max(np.hypot(free[:, 1:, 1], free[:, 1:, 4])))
+    for solver in ("clarabel", "cvxpy"):
+        capped = po.solve_mstep(scenario_a, data.W, data.WZ, data.r, solver, [po.SpeedLimit(vmax)])
+        assert np.max(np.hypot(capped[:, 1:, 1], capped[:, 1:, 4])) <= vmax + 1e-6
+
+
+def test_backends_declare_capabilities_and_constraints_their_needs() -> None:
+    from pmht_opt.mstep import BACKENDS
+
+    assert BACKENDS["clarabel"].supports == {"linear", "soc"}
+    assert BACKENDS["osqp"].supports == {"linear"}  # cones reach it as inner polygons
+    assert BACKENDS["cvxpy"].supports == {"linear", "soc", "cvxpy"}
+    assert BACKENDS["kalman"].supports == frozenset()
+    assert BACKENDS["osqp"].can_impose(po.SpeedLimit(1.0).needs)
+    assert not BACKENDS["osqp"].can_impose(po.CvxpyConstraint(lambda v: []).needs)
+    assert po.Terminal(velocity=(0, 0)).needs == {"linear"}
+    assert po.Terminal(position=(1, 1), radius=0.5).needs == {"linear", "soc"}
+    with pytest.raises(po.ConfigError, match="use one of cvxpy"):
+        po.PMHTConfig(solver="clarabel", constraints=[po.CvxpyConstraint(lambda v: [])])
+
+
+def test_static_rows_are_written_once_and_dynamic_ones_every_iteration(scenario_a: po.Scenario) -> None:
+    from pmht_opt.constraints import ConstraintContext
+    from pmht_opt.mstep.rows import RowBuilder
+
+    states = np.repeat(scenario_a.initial_states[:, None, :], 501, axis=1)
+    cons = (po.SpeedLimit(0.1), po.CircleObstacle((50.0, 50.0), 1.0))
+    builder = RowBuilder(cons, conic=True)
+    first = builder.rows(ConstraintContext(scenario_a, states, iteration=1), (0, 1))
+    again = builder.rows(ConstraintContext(scenario_a, states, iteration=2), (0, 1))
+    only_static = builder.rows(ConstraintContext(scenario_a, states, iteration=3), (0,))
+    assert first[0].key == ((0,), (1, 1)) and again[0].key == ((0,), (1, 2))
+    assert only_static[0].key == ((0,),)
+    assert first[0].items[0] is again[0].items[0]  # the speed limit's rows are reused
+    polygons = RowBuilder(cons, conic=False).rows(ConstraintContext(scenario_a, states), (0,))
+    assert {i.block.kind for i in polygons[0].items} == {"nonneg"}

@@ -7,7 +7,7 @@ import pytest
 import scipy.sparse as sp
 
 import solvers
-from solvers import SOC, Nonneg, QPProblem, Status, Zero
+from solvers import SOC, Nonneg, QPProblem, QPSolution, Status, Zero
 from solvers.kalman import rts_smoother
 
 BACKENDS = ["osqp", "clarabel", "cvxpy"]
@@ -209,3 +209,50 @@ def test_rts_rejects_bad_shapes() -> None:
             np.zeros((1, 3, 1, 1)),
             np.ones((2, 3)),
         )
+
+
+def test_retry_chain_runs_in_order_skips_the_callers_and_stops_on_infeasibility() -> None:
+    failed = QPSolution(Status.MAX_ITER, "x", "max iterations")
+    good = QPSolution(Status.OPTIMAL, "x", "solved", x=np.zeros(1))
+    tried: list[dict] = []
+
+    def attempt(settings: dict) -> QPSolution:
+        tried.append(settings)
+        return good if settings.get("rho") == 30 else failed
+
+    chain = solvers.RetryChain(({"rho": 100}, {"rho": 30}, {"rho": 1}))
+    out, used = solvers.retry_failed(failed, {"eps": 1}, chain, attempt)
+    assert out is good and used == {"eps": 1, "rho": 30}
+    assert tried == [{"eps": 1, "rho": 100}, {"eps": 1, "rho": 30}]
+    assert out.info["fallback"] == {"rho": 30} and out.info["first_status"] == "max iterations"
+    # The caller chose rho: nothing is tried; a verdict of infeasibility is final.
+    assert chain.without({"rho"}).sets == ()
+    infeasible = QPSolution(Status.PRIMAL_INFEASIBLE, "x", "infeasible")
+    assert solvers.retry_failed(infeasible, {}, chain, attempt) == (infeasible, None)
+    tried.clear()
+    assert solvers.retry_failed(failed, {}, solvers.RetryChain(({"rho": 5},)), attempt) == (failed, None)
+    assert tried == [{"rho": 5}]
+
+
+def test_one_residual_for_every_cone_kind() -> None:
+    np.testing.assert_array_equal(solvers.cone_violation(np.array([0.5, -2.0]), "zero"), [0.5, 2.0])
+    np.testing.assert_array_equal(solvers.cone_violation(np.array([0.5, -2.0]), "nonneg"), [0.0, 2.0])
+    soc = solvers.cone_violation(np.array([5.0, 3.0, 4.0, 1.0, 3.0, 4.0]), "soc", 3)
+    np.testing.assert_allclose(soc, [0.0, 4.0])
+    with pytest.raises(solvers.ProblemError, match="cone kind"):
+        solvers.cone_violation(np.zeros(2), "psd")
+
+
+def test_cone_constraints_group_runs_of_equal_cones() -> None:
+    import cvxpy as cp
+
+    from solvers.cvxpy_ import cone_constraints
+
+    # max x0 + x1 with x2 = x0, ||(x0, x1)|| <= 1, ||(x1, x2)|| <= 1 and x1 <= 0.5.
+    x = cp.Variable(3)
+    slack = cp.hstack([x[2] - x[0], 1.0, x[0], x[1], 1.0, x[1], x[2], 0.5 - x[1]])
+    cones = [solvers.Zero(1), solvers.SOC(3), solvers.SOC(3), solvers.Nonneg(1)]
+    out = cone_constraints(slack, cones)
+    assert len(out) == 3  # the two cones are one vectorised constraint
+    cp.Problem(cp.Minimize(-x[0] - x[1]), out).solve(solver="CLARABEL")
+    np.testing.assert_allclose(x.value, [np.sqrt(0.75), 0.5, np.sqrt(0.75)], atol=1e-6)
