@@ -1,4 +1,5 @@
-"""The E-step: assignment weights, prior updates and the EM objective (paper eqs 9-12; docs/model.md).
+"""The E-step: assignment weights, prior updates and the EM objective (paper eqs 9-12;
+docs/model.md sections 4.2-4.3 and 7).
 
 :func:`estep` weighs every locale against every (time, platform) point of the current paths in the log
 domain (:mod:`pmht_opt.likelihood`), densely or, when ``r`` is small, gated (:mod:`pmht_opt.gating`):

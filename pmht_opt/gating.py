@@ -33,8 +33,8 @@ from pmht_opt.likelihood import _SAFE_SCALE, _UNDERFLOW, EStepInputs, log_const,
 GATE_AUTO_NATS = 37.0
 #: Extra nats on the candidate radius so that rounding in the bound can never lose a kept triple.
 _GATE_SLACK = 1.0
-#: The gated E-step runs when it would keep at most this fraction of the ``N T M`` triples (measured:
-#: a candidate triple costs several times a dense one; see studies/results/scaling).
+#: The gated E-step runs when it would keep at most this fraction of the ``N T M`` triples: a candidate
+#: triple costs several times a dense one (docs/decisions.md section 6.1).
 GATE_MAX_FRACTION = 0.1
 #: Locales sampled to estimate the number of candidates before committing to the gated E-step.
 _GATE_SAMPLE = 64

@@ -1,9 +1,9 @@
-"""The motion model and the fitting penalty (SPEC section 1, paper eqs. 17-18).
+"""The motion model and the fitting penalty (paper eqs. 17-18; docs/model.md sections 2-3).
 
 State of a platform: ``x = [px, vx, ax, py, vy, ay]``; each axis is an independent constant-acceleration
 (white-noise jerk) model. The process noise is written through a Cholesky factor ``L`` of ``Q``
 (``x_t = F x_{t-1} + L u_t`` with ``u_t ~ N(0, I)``); this is what keeps the M-step QP well scaled,
-where ``Q^-1`` in a Hessian would not be (SPEC section 6).
+where ``Q^-1`` in a Hessian would not be (docs/model.md section 5).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Settings of the PMHT planner and its entry point (docs/model.md).
+"""Settings of the PMHT planner and its entry point (docs/model.md section 4).
 
 One iteration of the EM is an E-step (weights from the current paths and priors, eq. 9), the prior
 updates (eqs 11, 12; each switchable) and an M-step (the smoothing problem, eqs 13-16). The EM objective
@@ -43,9 +43,9 @@ class PMHTConfig:
         Stop when the relative change of the EM objective between iterations falls below ``tol``;
         ``0`` runs exactly ``max_iter`` iterations.
     update_time_prior
-        Re-estimate ``pi^tau`` each iteration (eq. 11). Off by default: measured on scenarios A-C, the
+        Re-estimate ``pi^tau`` each iteration (eq. 11). Off by default: on scenarios A-C the
         update collapses each locale's time prior onto one time within a few iterations and platforms
-        with no locale left fly out of the area under constant acceleration (docs/model.md); the
+        with no locale left fly out of the area under constant acceleration (docs/model.md section 4.3); the
         paper's literal setting is ``True``.
     update_platform_prior
         Re-estimate ``pi^k`` each iteration (eq. 12).
@@ -71,7 +71,7 @@ class PMHTConfig:
         ``(start, iterations)`` (geometric), a callable ``iteration -> r`` or ``None`` (plain EM).
         Default: ``Anneal(start=1.0, iterations=30)``, geometric from 1.0 to ``r`` over the first 30 of
         the 100 iterations, chosen by the 100-trial study ``studies/anneal.py`` (README, "Annealed EM"):
-        it is shorter and covers more locales than plain EM on A, B and C (docs/decisions.md). The
+        it is shorter and covers more locales than plain EM on A, B and C (docs/decisions.md section 5.1). The
         objective history is computed with each iteration's ``r``; it never decreases once ``r`` stays
         fixed.
     estep_gate
@@ -86,7 +86,7 @@ class PMHTConfig:
         early in annealing). ``"auto"`` stays dense with ``update_time_prior=True``: the gated
         ``pi^tau[n, t]`` is zero, not tiny, where no triple of ``(n, t)`` is kept, and the EM can
         revive tiny time priors; a numeric ``G`` gates anyway. On by default: large plans are much
-        faster, and where the gate does not pay it costs nothing (dense; docs/decisions.md).
+        faster, and where the gate does not pay it costs nothing (dense; docs/decisions.md section 6.1).
     stop
         Further stopping criteria (:mod:`pmht_opt.stopping`, e.g. ``TimeBudget(5.0)``): the run also
         stops when any of them says so. ``tol`` is :class:`~pmht_opt.stopping.ObjectiveTolerance`,

@@ -1,4 +1,4 @@
-"""Scenarios: locales to visit, platforms' starts, horizon and model parameters (SPEC sections 1, 5)."""
+"""Scenarios: locales to visit, platforms' starts, horizon and model parameters (docs/model.md 1, 12)."""
 
 from __future__ import annotations
 
@@ -245,7 +245,7 @@ ScenarioKind = Literal["A", "B", "C"]
 
 
 def paper_scenario(kind: str, seed: int | np.random.Generator | None = 0, **overrides: Any) -> Scenario:
-    """One trial of the paper's scenarios (SPEC section 5).
+    """One trial of the paper's scenarios (docs/model.md section 12).
 
     * ``A``: locales on the uniform 10 x 10 grid (centres 0.5 .. 9.5), 4 platforms uniformly random in
       the box.

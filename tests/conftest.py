@@ -13,7 +13,7 @@ import pmht_opt as po
 #: Backends of the M-step that every cross-check runs.
 QP_BACKENDS = ["clarabel", "osqp", "cvxpy"]
 ALL_BACKENDS = ["kalman", *QP_BACKENDS]
-#: Largest position difference to the RTS answer accepted on one M-step (issue 2, point 1).
+#: Largest position difference to the RTS answer accepted on one M-step.
 POSITION_TOL = 1e-6
 
 

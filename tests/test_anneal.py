@@ -1,4 +1,4 @@
-"""Annealed EM (issue 5): the schedule, the objective history and the failure modes."""
+"""Annealed EM: the schedule, the objective history and the failure modes."""
 
 from __future__ import annotations
 

@@ -257,7 +257,7 @@ def test_soft_mode_matches_hard_when_feasible() -> None:
         sc, PMHTConfig(max_iter=3, constraints=[SpeedLimit(0.1, soft=True, weight=1e6)], anneal=None)
     )
     # Plain EM: under annealing's wide first penalties the exact-penalty optimum is equally the hard
-    # one, but both solves are less sharp (measured 6e-5 apart).
+    # one, but both solves are less sharp.
     assert np.max(np.abs(hard.positions - soft.positions)) < 1e-5
 
 

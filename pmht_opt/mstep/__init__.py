@@ -1,7 +1,7 @@
 """The M-step: the smoothing problem of one EM iteration, and its backends.
 
 Given the E-step's weights the M-step finds the paths that maximise ``log P(X)`` plus the weighted fit
-to the locales (docs/model.md), subject to the constraints active in the iteration. Backends:
+to the locales (docs/model.md section 4.4), subject to the constraints active in the iteration. Backends:
 
 * ``clarabel``, ``osqp``: the sparse QP of :mod:`pmht_opt.mstep.formulation` through :mod:`solvers`,
   one QP per platform, built once and updated in place (:mod:`~pmht_opt.mstep.qp`);

@@ -1,4 +1,4 @@
-r"""The M-step as a sparse convex QP: variables, dynamics rows and the objective (docs/model.md).
+r"""The M-step as a sparse convex QP: variables, dynamics rows and the objective (docs/model.md section 5).
 
 Given the E-step's weights, the M-step minimises over the paths
 

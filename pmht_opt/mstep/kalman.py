@@ -2,7 +2,7 @@
 
 Without constraints the M-step is a smoothing problem: the paths that maximise ``log P(X)`` plus the
 weighted fit are the smoothed means of a linear-Gaussian model measured by ``ztilde = WZ / W`` with
-covariance ``R / W`` (paper eqs 15-16; docs/model.md). The x and y axes share ``F3``, ``Q3`` and
+covariance ``R / W`` (paper eqs 15-16; docs/model.md section 4.4). The x and y axes share ``F3``, ``Q3`` and
 ``R / W``, so one covariance recursion per platform serves both axes' means.
 """
 

@@ -1,12 +1,12 @@
 """Backend settings of the M-step, as data: the defaults, the constrained defaults and the retries.
 
-Why each value (figures in docs/decisions.md):
+Why each value (figures in docs/decisions.md sections 2 and 3):
 
 * OSQP, unconstrained: residuals of the dynamics integrate into positions over hundreds of steps, so
   ADMM must run to 1e-9; with ``rho = 1`` it gets there in fewer iterations than with its default, and
   polishing needs many refinement steps for the same accuracy, which cost more.
 * OSQP, constrained: at 1e-9 ADMM needs tens of thousands of iterations with inequality rows; at 1e-5
-  with polishing it solves limits, bounds, obstacles and terminal conditions. OSQP 1.1's duality-gap
+  with polishing it solves limits, bounds, obstacles and terminal conditions. OSQP's duality-gap
   test keeps such solves at "solved inaccurate", so it is off. Polishing recovers the exact answer when
   ADMM found the active set; on speed limits positions can stay about 1e-3 from the optimum, so use
   clarabel for exact constrained plans.
