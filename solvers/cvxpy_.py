@@ -133,8 +133,23 @@ def solve_to_solution(
     )
 
 
+#: ``extra(x) -> (constraints, cost)``: native cvxpy constraints and cost terms on the variable ``x``.
+ExtraTerms = Callable[[Any], tuple[list[Any], Any]]
+
+
 class CvxpySession(QPSession):
-    """The problem in cvxpy form; ``q`` and ``b`` are parameters, ``P`` and ``A`` rebuild it."""
+    """The problem in cvxpy form, compiled once where cvxpy's parametrised (DPP) form allows.
+
+    ``q`` and ``b`` are parameters. A diagonal ``P`` enters as ``1/2 sum(p_i x_i^2)`` through the
+    parameter ``sqrt(p)``, so its updates need no recompilation either; any other ``P``, and every
+    change of ``A``, rebuilds the problem. Problems with second-order cones are solved with
+    ``ignore_dpp``: cvxpy's parametrised compilation of many cones costs minutes and gigabytes, a plain
+    one a fraction of a second.
+
+    ``settings`` may hold ``cvxpy_solver`` (default ``"CLARABEL"``) and ``extra``, a callable
+    ``extra(x) -> (constraints, cost)`` adding native cvxpy constraints and cost terms on the
+    variable vector ``x`` (re-applied at every rebuild); the rest goes to ``cvxpy.Problem.solve``.
+    """
 
     name: ClassVar[str] = "cvxpy"
     supports_soc: ClassVar[bool] = True
@@ -142,6 +157,10 @@ class CvxpySession(QPSession):
     def _setup(self) -> None:
         opts = dict(self.settings)
         self._solver_name = check_solver_name(opts.pop("cvxpy_solver", DEFAULT_SOLVER))
+        extra = opts.pop("extra", None)
+        if extra is not None and not callable(extra):
+            raise SettingsError(f"cvxpy: extra must be a callable x -> (constraints, cost), got {extra!r}.")
+        self._extra: ExtraTerms | None = extra
         if self.problem.has_soc:
             opts.setdefault("ignore_dpp", True)
         self._options = opts
@@ -152,16 +171,31 @@ class CvxpySession(QPSession):
         x = cp.Variable(prob.n)
         self._q = cp.Parameter(prob.n, value=prob.q)
         self._b = cp.Parameter(prob.m, value=prob.b) if prob.m else None
-        full = prob.P + sp.triu(prob.P, k=1).T
-        objective = 0.5 * cp.quad_form(x, cp.psd_wrap(full)) + self._q @ x
+        coo = prob.P.tocoo()
+        self._diag: np.ndarray | None = None
+        if np.all(coo.row == coo.col):
+            # Diagonal P: its stored entries (a subset of the diagonal) become one parameter.
+            self._diag = coo.row
+            self._sqrt_p = cp.Parameter(coo.row.size, nonneg=True, value=np.sqrt(np.maximum(coo.data, 0.0)))
+            quad = 0.5 * cp.sum_squares(cp.multiply(self._sqrt_p, x[coo.row])) if coo.row.size else 0.0
+        else:
+            full = prob.P + sp.triu(prob.P, k=1).T
+            quad = 0.5 * cp.quad_form(x, cp.psd_wrap(full))
         constraints = cone_constraints(self._b - prob.A @ x, prob.cones) if self._b is not None else []
+        cost: Any = quad + self._q @ x
+        if self._extra is not None:
+            more, extra_cost = self._extra(x)
+            constraints += list(more)
+            cost = cost + extra_cost
         self._x = x
-        self._problem = cp.Problem(cp.Minimize(objective), constraints)
+        self._problem = cp.Problem(cp.Minimize(cost), constraints)
 
     def _apply_update(self, update: Update) -> None:
-        if update.P_data is not None or update.A_data is not None:
+        if update.A_data is not None or (update.P_data is not None and self._diag is None):
             self._build()
             return
+        if update.P_data is not None:
+            self._sqrt_p.value = np.sqrt(np.maximum(self.problem.P.tocoo().data, 0.0))
         if update.q is not None:
             self._q.value = update.q
         if update.b is not None and self._b is not None:

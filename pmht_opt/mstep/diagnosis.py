@@ -12,7 +12,7 @@ import numpy as np
 
 import solvers
 from pmht_opt.exceptions import ConfigError, InfeasibleError, SolverError
-from pmht_opt.mstep.platform import PlatformQP
+from pmht_opt.mstep.platform import HorizonQP
 from pmht_opt.mstep.rows import PlatformRows
 
 #: Penalty weight of the soft re-solve that locates infeasible constraints.
@@ -22,7 +22,7 @@ CULPRIT_SLACK = 1e-6
 
 
 def diagnose(
-    probe: PlatformQP,
+    probe: HorizonQP,
     platform: int,
     W: np.ndarray,
     WZ: np.ndarray,
@@ -32,7 +32,8 @@ def diagnose(
 ) -> InfeasibleError:
     """The error for platform ``platform``'s infeasible M-step, naming culprits where it can.
 
-    ``probe`` is a fresh :class:`PlatformQP` of the platform; ``sol`` is the infeasible answer.
+    ``probe`` is a fresh full-horizon :class:`~pmht_opt.mstep.platform.HorizonQP` of the platform;
+    ``sol`` is the infeasible answer.
     """
     names = sorted({i.name for i in rows.items if not i.soft})
     where = f"platform {platform}: the constraints {', '.join(names)} cannot all be met"

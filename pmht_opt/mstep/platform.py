@@ -1,7 +1,17 @@
-"""One platform's M-step QP: built once, its weights updated in place each iteration."""
+"""One platform's M-step QP: built once per horizon, its weights updated in place each iteration.
+
+A trailing stretch of steps without weight (nothing pulls on the path after its last weighted step)
+has the exact answer "no process noise": the path coasts from the state at the last weighted step.
+Left in the QP, that stretch is a flat valley of the objective in which every backend stops early,
+and the error grows along the coasting path (units at the horizon's end where the weights stop
+halfway). Without constraint rows the QP is therefore solved up to the last weighted step only and the
+tail is propagated exactly. A weight counts when it is above :data:`NEGLIGIBLE_WEIGHT` times the
+platform's largest: below that its pull on the path is lost in rounding.
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -13,9 +23,99 @@ from pmht_opt.model import PX, PY, STATE_DIM, MotionModel
 from pmht_opt.mstep.formulation import QPLayout, dynamics_rows
 from pmht_opt.mstep.rows import ExtraRows, PlatformRows, assemble
 
+#: Weights at or below this fraction of a platform's largest do not extend the horizon of its QP.
+NEGLIGIBLE_WEIGHT = 1e-12
+
+
+def weighted_horizon(W: np.ndarray) -> int:
+    """The last step (``1..T``) whose weight is not negligible (:data:`NEGLIGIBLE_WEIGHT`); 0 if none."""
+    peak = float(np.max(W)) if W.size else 0.0
+    if peak <= 0.0:
+        return 0
+    steps = np.flatnonzero(W > NEGLIGIBLE_WEIGHT * peak)
+    return int(steps[-1]) + 1
+
+
+@dataclass
+class Settings:
+    """The settings one platform's QPs use: shared by its horizons, so a retry set that solved is kept."""
+
+    plain: dict[str, Any]
+    constrained: dict[str, Any]
+    retries: solvers.RetryChain
+
 
 class PlatformQP:
-    """The M-step QP of one platform (:mod:`pmht_opt.mstep.formulation`), kept across iterations.
+    """The M-step of one platform: a :class:`HorizonQP` per horizon, the coasting tail propagated.
+
+    Parameters are those of :class:`HorizonQP`. :meth:`solve` returns the backend's answer and the
+    platform's states ``(T, 6)`` for ``t = 1..T`` (``None`` when the answer has no primal vector).
+    """
+
+    #: Horizons whose QP (and backend session) is kept for later iterations.
+    CACHE = 4
+
+    def __init__(
+        self,
+        model: MotionModel,
+        x0: np.ndarray,
+        horizon: int,
+        session_class: type[solvers.QPSession],
+        settings: dict[str, Any],
+        constrained_settings: dict[str, Any] | None = None,
+        retries: solvers.RetryChain = solvers.NO_RETRY,
+    ) -> None:
+        self.model = model
+        self.x0 = x0
+        self.horizon = horizon
+        self.session_class = session_class
+        self.state = Settings(
+            settings, settings if constrained_settings is None else constrained_settings, retries
+        )
+        self._qps: dict[int, HorizonQP] = {}
+
+    @property
+    def settings(self) -> dict[str, Any]:
+        """The settings of unconstrained solves (a retry set that solved included)."""
+        return self.state.plain
+
+    @property
+    def retries(self) -> solvers.RetryChain:
+        """The settings tried after a failed solve."""
+        return self.state.retries
+
+    @retries.setter
+    def retries(self, chain: solvers.RetryChain) -> None:
+        self.state.retries = chain
+
+    def qp(self, horizon: int) -> HorizonQP:
+        """The QP of the first ``horizon`` steps (created on first use, the oldest dropped)."""
+        if horizon not in self._qps:
+            if len(self._qps) >= self.CACHE:
+                self._qps.pop(next(iter(self._qps)))
+            self._qps[horizon] = HorizonQP(self.model, self.x0, horizon, self.session_class, self.state)
+        return self._qps[horizon]
+
+    def solve(
+        self, W: np.ndarray, WZ: np.ndarray, r: float, rows: PlatformRows | None = None
+    ) -> tuple[solvers.QPSolution, np.ndarray | None]:
+        """Solve for weights ``W (T,)``, weighted locale sums ``WZ (T, 2)`` and constraint rows."""
+        T = self.horizon
+        constrained = rows is not None and bool(rows.items)
+        n = T if constrained else max(weighted_horizon(W), 1)
+        qp = self.qp(n)
+        sol = qp.solve(W[:n], WZ[:n], r, rows)
+        if sol.x is None:
+            return sol, None
+        head = qp.layout.states(sol.x[: qp.layout.n])[0]
+        if n == T:
+            return sol, head
+        tail = self.model.propagate(head[-1], T - n)[1:]
+        return sol, np.concatenate([head, tail])
+
+
+class HorizonQP:
+    """The M-step QP of one platform over ``horizon`` steps (:mod:`pmht_opt.mstep.formulation`).
 
     Constraint rows go below the dynamics, soft constraints' slacks after the platform's own variables.
     While the rows stay the same (their key is unchanged) only the weights are pushed to the backend;
@@ -33,15 +133,11 @@ class PlatformQP:
         x0: np.ndarray,
         horizon: int,
         session_class: type[solvers.QPSession],
-        settings: dict[str, Any],
-        constrained_settings: dict[str, Any] | None = None,
-        retries: solvers.RetryChain = solvers.NO_RETRY,
+        state: Settings,
     ) -> None:
         self.layout = lay = QPLayout(1, horizon)
         self.session_class = session_class
-        self.settings = settings
-        self.constrained_settings = settings if constrained_settings is None else constrained_settings
-        self.retries = retries
+        self.state = state
         t_idx = np.arange(1, horizon + 1)
         self.px = lay.x(0, t_idx, PX)
         self.py = lay.x(0, t_idx, PY)
@@ -100,7 +196,7 @@ class PlatformQP:
     @property
     def options(self) -> dict[str, Any]:
         """The settings in use: the constrained ones when there are constraint rows."""
-        return self.settings if self.extra is None else self.constrained_settings
+        return self.state.plain if self.extra is None else self.state.constrained
 
     def solve(
         self, W: np.ndarray, WZ: np.ndarray, r: float, rows: PlatformRows | None = None
@@ -141,7 +237,7 @@ class PlatformQP:
         The set that solves is kept for this platform's later solves (its session, warm, replaces the
         failed one), so a run does not pay for the failing settings every iteration.
         """
-        if not self.retries.sets or sol.ok or sol.status in solvers.INFEASIBLE:
+        if not self.state.retries.sets or sol.ok or sol.status in solvers.INFEASIBLE:
             return sol
         A, b, cones = self._constraints()
         n_slack = 0 if self.extra is None else self.extra.n_slack
@@ -152,13 +248,13 @@ class PlatformQP:
             last[:] = [self.session_class(problem, **settings)]
             return last[0].solve()
 
-        out, used = solvers.retry_failed(sol, self.options, self.retries, attempt)
+        out, used = solvers.retry_failed(sol, self.options, self.state.retries, attempt)
         if used is not None:  # the last session opened is the one that solved
             self.problem, self.session = problem, last[0]
             if self.extra is None:
-                self.settings = used
+                self.state.plain = used
             else:
-                self.constrained_settings = used
+                self.state.constrained = used
         return out
 
     def slacks(self, x: np.ndarray) -> np.ndarray:

@@ -94,25 +94,26 @@ class QPMStep(MStep):
             idle[m] = False
         active = [int(m) for m in np.flatnonzero(~idle)]
 
-        def one(m: int) -> solvers.QPSolution:
+        def one(m: int) -> tuple[solvers.QPSolution, np.ndarray | None]:
             return self.blocks[m].solve(data.W[:, m], data.WZ[:, m], data.r, rows.get(m))
 
         if self.threads > 1 and len(active) > 1:
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="pmht-mstep")
-            sols = list(self._pool.map(one, active))
+            answers = list(self._pool.map(one, active))
         else:
-            sols = [one(m) for m in active]
+            answers = [one(m) for m in active]
         body = np.empty((self.M, self.T, STATE_DIM))
         for m in np.flatnonzero(idle).tolist():
             body[m] = self.model.propagate(self.x0[m], self.T)[1:]
-        for m, sol in zip(active, sols, strict=True):
+        for m, (sol, states) in zip(active, answers, strict=True):
             platform_rows = rows.get(m)
             if sol.status in solvers.INFEASIBLE and platform_rows is not None and platform_rows.items:
                 raise self._diagnose(m, data, platform_rows, sol)
             check_solution(sol, self.accept_inaccurate, platform=m)
-            assert sol.x is not None
-            body[m] = self.blocks[m].layout.states(sol.x[: self.blocks[m].layout.n])[0]
+            assert states is not None
+            body[m] = states
+        sols = [sol for sol, _ in answers]
         out = MStepOutput(
             states=self._with_start(body),
             iterations=int(sum(s.iterations for s in sols)),
