@@ -14,7 +14,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent / "regression"))
 
-from cases import CASES, run_case  # noqa: E402
+from cases import CASES, run_case
 
 REFERENCE = np.load(Path(__file__).parent / "regression" / "plans.npz")
 #: Largest position difference accepted: the same arithmetic up to rounding.
