@@ -91,6 +91,7 @@ class _Worker:
 class _State:
     queue: deque[tuple[cf.Future[Any], bytes]] = field(default_factory=deque)
     workers: list[_Worker] = field(default_factory=list)
+    retired: list[_Worker] = field(default_factory=list)
     closed: bool = False
 
 
@@ -204,9 +205,9 @@ class WorkerPool(cf.Executor):
         else:
             fut.set_exception(value)
         if self._max_tasks is not None and w.done >= self._max_tasks:
-            w.process.join(timeout=5)
+            # The worker exits by itself; a replacement starts while it tears down (joined at shutdown).
             self._state.workers.remove(w)
-            w.conn.close()
+            self._state.retired.append(w)
 
     def _collect_last(self, w: _Worker) -> bool:
         """A worker exited: take a result it sent just before, if any. True when that settled it."""
@@ -232,7 +233,7 @@ class WorkerPool(cf.Executor):
             self._state.closed = True
             queued = list(self._state.queue)
             self._state.queue.clear()
-            workers = list(self._state.workers)
+            workers = self._state.workers + self._state.retired
         for fut, _ in queued:
             fut.cancel()
         with contextlib.suppress(OSError):
