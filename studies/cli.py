@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 
-from pmht_opt.exceptions import PmhtOptError
+from pmht_opt.exceptions import MissingDependencyError, PmhtOptError
 from studies.options import RunOptions
 from studies.trials import TrialTable, local_executor, verify
 
@@ -31,6 +31,24 @@ STUDIES: dict[str, tuple[str, str]] = {
     "scaling": ("studies.scaling", "plan time and peak memory as locales, horizon and platforms grow"),
     "anneal": ("studies.anneal", "plain against annealed EM with both time-prior settings"),
 }
+
+
+#: What the ``studies`` extra installs.
+EXTRAS = ("pandas", "tqdm")
+
+
+def require_extras() -> None:
+    """Raise :class:`MissingDependencyError` naming the extra when pandas or tqdm is missing."""
+    missing = []
+    for name in EXTRAS:
+        try:
+            importlib.import_module(name)
+        except ModuleNotFoundError:
+            missing.append(name)
+    if missing:
+        raise MissingDependencyError(
+            f'the studies need {", ".join(missing)}; install the extra: pip install ".[studies]"'
+        )
 
 
 def _add_run_options(p: argparse.ArgumentParser) -> None:
@@ -90,6 +108,11 @@ def run_verify(table: TrialTable, run: RunOptions, executor: cf.Executor | None 
 
 def main(argv: Sequence[str] | None = None, prog: str = "pmht-opt study") -> int:
     """Parse ``argv``, run the study (or verify it) and print the paths written; return the exit status."""
+    try:
+        require_extras()
+    except MissingDependencyError as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
+        return 2
     ns = build_parser(prog).parse_args(argv)
     module = _module(ns.study)
     try:

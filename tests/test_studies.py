@@ -197,3 +197,18 @@ def test_ctrl_c_exits_130_and_keeps_finished_rows(tmp_path: Path) -> None:
     assert err.strip().splitlines()[-1].startswith("pmht-opt study: interrupted; finished trials are kept")
     rows = read_rows(path, anneal.TABLE.schema, "anneal")
     assert 2 <= len(rows) < 500 and all(r["error_class"] == "" for r in rows)
+
+
+def test_a_missing_studies_extra_names_the_extra() -> None:
+    code = (
+        "import sys\n"
+        "sys.modules['pandas'] = None  # as if the extra were not installed\n"
+        "from pmht_opt.cli import main\n"
+        "sys.exit(main(sys.argv[1:]))"
+    )
+    done = subprocess.run([sys.executable, "-c", code, "study", "anneal"], capture_output=True, text=True)
+    assert done.returncode == 2
+    assert (
+        'pandas; install the extra: pip install ".[studies]"' in done.stderr
+        and "Traceback" not in done.stderr
+    )

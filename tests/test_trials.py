@@ -94,7 +94,9 @@ def test_round_trip_keeps_types_and_provenance(tmp_path: Path) -> None:
     )
     with ResultsFile(tmp_path / "t.jsonl", schema, "t", {"commit": "abc"}) as store:
         store.append({"kind": "A", "seed": 1}, {"x": 3, "n": 2, "ok": True, "xs": (1, 2), "d": {"k": 1}})
-        store.append({"kind": "B", "seed": 2}, {"x": math.nan, "n": 0, "ok": False, "xs": [], "d": {}, "note": ""})
+        store.append(
+            {"kind": "B", "seed": 2}, {"x": math.nan, "n": 0, "ok": False, "xs": [], "d": {}, "note": ""}
+        )
         store.append({"kind": "C", "seed": 3}, error_class="SolverError", error="no")
     loaded = load(tmp_path / "t.jsonl", schema, "t")
     a, b, c = loaded.rows.values()
@@ -194,7 +196,6 @@ def test_truncated_file_resumes_with_only_the_cut_row_recomputed(tmp_path: Path)
         assert load(path, SCHEMA, "squares").clean  # rewritten once: no damage left
 
 
-
 def test_nul_damaged_file_resumes_with_only_the_damaged_row_recomputed(tmp_path: Path) -> None:
     run_trials(COUNTED, TRIALS, tmp_path, progress=False)
     path = COUNTED.path(tmp_path)
@@ -222,9 +223,7 @@ def test_nul_damaged_file_resumes_with_only_the_damaged_row_recomputed(tmp_path:
         (lambda r: r.update(error_class="SolverError"), "error: empty value"),
     ],
 )
-def test_rows_failing_their_schema_are_reported_and_recomputed(
-    tmp_path: Path, edit: Any, field: str
-) -> None:
+def test_rows_failing_their_schema_are_reported_and_recomputed(tmp_path: Path, edit: Any, field: str) -> None:
     run_trials(COUNTED, TRIALS, tmp_path, progress=False)
     path = COUNTED.path(tmp_path)
     raw = lines(path)
@@ -323,7 +322,9 @@ def test_sigkill_of_the_parent_leaves_no_worker_alive(tmp_path: Path) -> None:
 
 
 def test_same_rows_with_one_worker_two_workers_and_dask(tmp_path: Path) -> None:
-    table = TrialTable("plans", small_plan, Schema({"seed": "int"}, {"distance": "float", "per_platform": "list"}))
+    table = TrialTable(
+        "plans", small_plan, Schema({"seed": "int"}, {"distance": "float", "per_platform": "list"})
+    )
     trials = [{"seed": s} for s in range(3)]
 
     def values(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
