@@ -28,6 +28,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import math
+import queue
 import socket
 import sys
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -331,12 +332,17 @@ def _run_parallel(
 ) -> None:
     attempts: dict[str, int] = {}
     pending: dict[cf.Future[Any], str] = {}
+    # Futures report here when done: waiting costs the same however many are pending.
+    finished: queue.SimpleQueue[cf.Future[Any]] = queue.SimpleQueue()
 
     def submit(key: str) -> None:
         try:
-            pending[ex.submit(call_trial, table.fn, by_id[key])] = key
+            fut = ex.submit(call_trial, table.fn, by_id[key])
         except (cf.BrokenExecutor, RuntimeError) as err:  # an executor that can take no more work
             record_crash(key, err)
+            return
+        pending[fut] = key
+        fut.add_done_callback(finished.put)
 
     def crash(key: str, err: BaseException) -> None:
         attempts[key] = attempts.get(key, 0) + 1
@@ -354,18 +360,20 @@ def _run_parallel(
         for key in todo:
             submit(key)
         while pending:
-            finished, _ = cf.wait(list(pending), return_when=cf.FIRST_COMPLETED)
-            for fut in finished:
-                key = pending.pop(fut)
-                err = fut.exception()
-                if err is None:
-                    _record(store, by_id[key], fut.result(), bar)
-                elif isinstance(err, KeyboardInterrupt):
-                    raise KeyboardInterrupt from err
-                elif _is_crash(err):
-                    crash(key, err)
-                else:
-                    _record(store, by_id[key], TrialError(type(err).__name__, str(err)), bar)
+            try:
+                fut = finished.get(timeout=0.5)  # a timeout keeps Ctrl-C prompt on every platform
+            except queue.Empty:
+                continue
+            key = pending.pop(fut)
+            err = fut.exception()
+            if err is None:
+                _record(store, by_id[key], fut.result(), bar)
+            elif isinstance(err, KeyboardInterrupt):
+                raise KeyboardInterrupt from err
+            elif _is_crash(err):
+                crash(key, err)
+            else:
+                _record(store, by_id[key], TrialError(type(err).__name__, str(err)), bar)
     finally:
         for fut in pending:
             fut.cancel()
