@@ -505,9 +505,10 @@ def constrained_rows(
         data = data_cone if used_conic else data_poly
         row = _row(base, label, m, ref, j_ref, data_cone, sc)
         row["conic"] = used_conic
+        ctx = data.ctx
         row["max_violation"] = (
-            max(c.violation(m.states, data.ctx).max_violation for c in cons)  # type: ignore[arg-type]
-            if m.states is not None
+            max(c.violation(m.states, ctx).max_violation for c in cons)
+            if m.states is not None and ctx is not None
             else math.nan
         )
         same, j_same = (ref, j_ref) if used_conic else (poly, j_poly)

@@ -359,9 +359,10 @@ def test_bad_dask_addresses_fail_fast() -> None:
 
 
 def test_bad_workers_is_a_config_error() -> None:
-    for bad in (0, -1, 1.5, True):
+    bad_values: list[Any] = [0, -1, 1.5, True]
+    for bad in bad_values:
         with pytest.raises(ConfigError, match="workers"):
-            local_executor(bad)  # type: ignore[arg-type]
+            local_executor(bad)
     assert isinstance(local_executor(1), InlineExecutor)
 
 
