@@ -85,8 +85,7 @@ def _run(scenario: Scenario, args: argparse.Namespace, default_out: Path | None)
     _report(result)
     out = args.out if args.out is not None else default_out
     if out is not None:
-        result.plot(out)
-        print(f"figure: {out}")
+        print(f"figure: {result.plot(out)}")
     if args.json is not None:
         payload = {
             "scenario": scenario.name,
@@ -95,6 +94,7 @@ def _run(scenario: Scenario, args: argparse.Namespace, default_out: Path | None)
             "assignment": result.assignment.tolist(),
             "visit_time": result.visit_time.tolist(),
         }
+        args.json.parent.mkdir(parents=True, exist_ok=True)  # as the figure's writer does
         args.json.write_text(json.dumps(payload) + "\n")
         print(f"metrics and paths: {args.json}")
     return result
