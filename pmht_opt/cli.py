@@ -10,10 +10,9 @@ from pathlib import Path
 from typing import Any
 
 from pmht_opt.anneal import Anneal
-from pmht_opt.exceptions import ConfigError, PmhtOptError
+from pmht_opt.exceptions import ConfigError, MissingDependencyError, PmhtOptError
 from pmht_opt.mstep import BACKENDS, available_backends
 from pmht_opt.planner import PMHTConfig, plan_pmht
-from pmht_opt.progress import ProgressBar
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario, paper_scenario
 
@@ -58,13 +57,25 @@ def _config(args: argparse.Namespace) -> PMHTConfig:
     return PMHTConfig(update_time_prior=args.update_time_prior, **common)
 
 
+def _progress_bar(total: int, label: str, quiet: bool) -> Any:
+    """A tqdm bar on stderr when tqdm is installed (the ``studies`` extra) and wanted; else ``None``."""
+    if quiet:
+        return None
+    try:
+        from tqdm import tqdm
+    except ModuleNotFoundError:
+        return None
+    return tqdm(total=total, desc=label, file=sys.stderr)
+
+
 def _run(scenario: Scenario, args: argparse.Namespace, default_out: Path | None) -> PlanResult:
     cfg = _config(args)
-    bar = None if args.quiet else ProgressBar(cfg.max_iter, label=f"PMHT ({cfg.solver})")
+    bar = _progress_bar(cfg.max_iter, f"PMHT ({cfg.solver})", args.quiet)
 
     def progress(it: int, objective: float) -> None:
         if bar is not None:
-            bar.update(1, suffix=f"objective {objective:.6g}")
+            bar.set_postfix_str(f"objective {objective:.6g}", refresh=False)
+            bar.update(1)
 
     try:
         result = plan_pmht(scenario, cfg, callback=progress)
@@ -74,8 +85,7 @@ def _run(scenario: Scenario, args: argparse.Namespace, default_out: Path | None)
     _report(result)
     out = args.out if args.out is not None else default_out
     if out is not None:
-        result.plot(out)
-        print(f"figure: {out}")
+        print(f"figure: {result.plot(out)}")
     if args.json is not None:
         payload = {
             "scenario": scenario.name,
@@ -84,6 +94,7 @@ def _run(scenario: Scenario, args: argparse.Namespace, default_out: Path | None)
             "assignment": result.assignment.tolist(),
             "visit_time": result.visit_time.tolist(),
         }
+        args.json.parent.mkdir(parents=True, exist_ok=True)  # as the figure's writer does
         args.json.write_text(json.dumps(payload) + "\n")
         print(f"metrics and paths: {args.json}")
     return result
@@ -149,35 +160,17 @@ def _cmd_solvers(args: argparse.Namespace) -> int:
     return 0
 
 
-#: ``pmht-opt study NAME``: the module of :mod:`pmht_opt.studies` that implements it. Each module
-#: has ``add_arguments(parser)`` and ``main(args) -> int``.
-STUDIES = {
-    "table1": "the paper's Table 1 and Figures 1-5, with what the paper lacked",
-    "solvers": "M-step backends against the kalman reference: time, iterations, gaps",
-    "scaling": "plan time and peak memory as locales, horizon and platforms grow",
-    "anneal": "plain against annealed EM with both time-prior settings",
-}
-
-
-def _add_study_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", type=Path, default=Path("study-results"), help="directory for results")
-    p.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1)")
-    p.add_argument(
-        "--dask-scheduler",
-        default=None,
-        metavar="ADDRESS",
-        help="run the trials on the Dask cluster at ADDRESS (e.g. tcp://host:8786); needs the dask extra",
-    )
-    p.add_argument("--fresh", action="store_true", help="start the results table afresh (default: resume)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-
-
-def _cmd_study(args: argparse.Namespace) -> int:
-    import importlib
-
-    module = importlib.import_module(f"pmht_opt.studies.{args.study}")
-    code: int = module.main(args)
-    return code
+def _cmd_study(argv: Sequence[str]) -> int:
+    """``pmht-opt study ...``: forwarded to :mod:`studies.cli`, imported only now (the core never
+    imports the studies)."""
+    try:
+        from studies.cli import main as study_main
+    except ModuleNotFoundError as err:
+        raise MissingDependencyError(
+            f"the studies need {err.name}, which is not installed; "
+            'install the extra: pip install ".[studies]"'
+        ) from None
+    return study_main(list(argv))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -207,26 +200,31 @@ def build_parser() -> argparse.ArgumentParser:
     solv = sub.add_parser("solvers", help="list the M-step backends and whether they are installed")
     solv.set_defaults(func=_cmd_solvers)
 
-    study = sub.add_parser("study", help="run one of the studies (Monte Carlo, benchmarks) into a directory")
-    names = study.add_subparsers(dest="study", required=True)
-    import importlib
-
-    for name, text in STUDIES.items():
-        sp = names.add_parser(name, help=text, description=text)
-        _add_study_options(sp)
-        importlib.import_module(f"pmht_opt.studies.{name}").add_arguments(sp)
-        sp.set_defaults(func=_cmd_study)
+    # Listed here for --help only: main() forwards ``study ...`` before parsing, so that the studies'
+    # own parser (and its imports) is reached only when a study runs.
+    study = sub.add_parser(
+        "study",
+        help="run a study (table1, anneal, solvers, scaling) into a directory; see pmht-opt study --help",
+        add_help=False,
+    )
+    study.add_argument("args", nargs=argparse.REMAINDER)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit status (2 for a bad input or a failed solve)."""
-    args = build_parser().parse_args(argv)
+    """Entry point; returns the exit status (2 for a bad input or a failed solve, 130 interrupted)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
     try:
+        if argv[:1] == ["study"]:
+            return _cmd_study(argv[1:])
+        args = build_parser().parse_args(argv)
         code: int = args.func(args)
     except PmhtOptError as err:
         print(f"pmht-opt: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("pmht-opt: interrupted.", file=sys.stderr)
+        return 130
     return code
 
 

@@ -1,16 +1,190 @@
-"""Plain against annealed EM on scenarios A, B, C (issue 5); writes studies/results/anneal*.
+"""Study: plain against annealed EM, with and without the time-prior update, on scenarios A, B, C.
 
+For every trial (scenario kind, seed) and configuration: total distance, coverage at 0.3, the largest
+excursion outside the 10 x 10 area, and time. The summary gives, per scenario and configuration, the
+mean, median and maximum distance, mean coverage, and the number of runs that leave the area by more
+than 1 unit (scenario B starts at x = -1, exactly 1 unit outside, which therefore does not count).
+
+The pairs "annealed" / "annealed+time-prior" answer whether the planner should re-estimate the time
+prior (paper eq. 11) once annealing is the default; "plain" / "plain+time-prior" show why annealing is.
+
+    pmht-opt study anneal --workers 2 --out studies/results/anneal
     python studies/anneal.py [--trials 100] [--workers 2]
 """
 
-import argparse
-from pathlib import Path
+from __future__ import annotations
 
-from pmht_opt.studies import anneal
+import argparse
+import sys
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pmht_opt.anneal import Anneal
+from pmht_opt.exceptions import ConfigError
+from pmht_opt.planner import PMHTConfig, plan_pmht
+from pmht_opt.scenario import paper_scenario
+from studies.options import RunOptions, positive_int
+from studies.report import EXCURSION_LIMIT, frame, summarise, write_summary
+from studies.store import Schema
+from studies.trials import Check, TrialTable, run_trials
+
+#: Configurations compared: name -> (anneal, update_time_prior). The first four are the main grid;
+#: the rest vary the schedule so the default is chosen among more than one annealed candidate.
+CONFIGS: dict[str, tuple[Anneal | None, bool]] = {
+    "plain": (None, False),
+    "plain+time-prior": (None, True),
+    "annealed": (Anneal(1.0, 30), False),
+    "annealed+time-prior": (Anneal(1.0, 30), True),
+    "annealed-1.0x15": (Anneal(1.0, 15), False),
+    "annealed-1.0x50": (Anneal(1.0, 50), False),
+    "annealed-0.1x30": (Anneal(0.1, 30), False),
+}
+GRID = ("plain", "plain+time-prior", "annealed", "annealed+time-prior")
+KINDS = ("A", "B", "C")
+HORIZON = 500
+
+
+def trial(kind: str, seed: int, config: str, horizon: int) -> dict[str, Any]:
+    """One plan of scenario ``kind`` (seed ``seed``, ``horizon`` steps) with configuration ``config``."""
+    anneal, time_prior = CONFIGS[config]
+    sc = paper_scenario(kind, seed=seed, horizon=horizon)
+    res = plan_pmht(sc, PMHTConfig(anneal=anneal, update_time_prior=time_prior, threads=1))
+    m = res.metrics()
+    return {
+        "distance": m["total_distance"],
+        "coverage": m["coverage"],
+        "excursion": m["max_excursion"],
+        "left_area": bool(m["max_excursion"] > EXCURSION_LIMIT + 1e-9),
+        "time": m["wall_time"],
+    }
+
+
+TABLE = TrialTable(
+    name="anneal",
+    fn=trial,
+    schema=Schema(
+        params={"kind": "str", "seed": "int", "config": "str", "horizon": "int"},
+        values={
+            "distance": "float",
+            "coverage": "float",
+            "excursion": "float",
+            "left_area": "bool",
+            "time": "float",
+        },
+    ),
+    checks={"time": Check("skip", reason="wall-clock time differs from run to run")},
+)
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of ``pmht-opt study anneal``."""
+
+    trials: int = 100
+    configs: tuple[str, ...] = tuple(CONFIGS)
+    kinds: tuple[str, ...] = KINDS
+    horizon: int = HORIZON
+
+    def __post_init__(self) -> None:
+        positive_int("--trials", self.trials)
+        positive_int("--horizon", self.horizon, minimum=2)
+        for name, values, known in (("--configs", self.configs, CONFIGS), ("--kinds", self.kinds, KINDS)):
+            bad = [v for v in values if v not in known]
+            if bad or not values:
+                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
+
+    @staticmethod
+    def add_arguments(p: argparse.ArgumentParser) -> None:
+        """The command-line options of this study."""
+        p.add_argument("--trials", type=int, default=100, help="trials per scenario and configuration")
+        p.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
+        p.add_argument("--horizon", type=int, default=HORIZON, help="time steps (default: the paper's 500)")
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> Options:
+        """The options from parsed arguments."""
+        return cls(int(ns.trials), tuple(ns.configs), tuple(ns.kinds), int(ns.horizon))
+
+
+def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Per (scenario, configuration): distance statistics, mean coverage, runs leaving the area."""
+    df = frame(rows)
+    out = []
+    order = {c: i for i, c in enumerate(CONFIGS)}
+    keys = sorted(
+        {(k, c) for k, c in zip(df["kind"], df["config"], strict=True)}, key=lambda k: (k[0], order[k[1]])
+    )
+    for kind, config in keys:
+        mine = df[(df["kind"] == kind) & (df["config"] == config)]
+        ok = mine[mine["error"] == ""]
+        dist = summarise(ok["distance"]) if "distance" in ok else summarise([])
+        out.append(
+            {
+                "scenario": kind,
+                "config": config,
+                "trials": dist["n"],
+                "failed": int((mine["error"] != "").sum()),
+                "mean_distance": dist["mean"],
+                "median_distance": dist["median"],
+                "max_distance": dist["max"],
+                "mean_coverage": summarise(ok["coverage"])["mean"] if len(ok) else float("nan"),
+                "left_area": int(ok["left_area"].astype(bool).sum()) if len(ok) else 0,
+                "median_time": summarise(ok["time"])["median"] if len(ok) else float("nan"),
+            }
+        )
+    return out
+
+
+def markdown(table: Sequence[Mapping[str, Any]]) -> str:
+    """The summary as a markdown table."""
+    lines = [
+        "| scenario | configuration | trials | mean distance | median | max | mean coverage (0.3) "
+        "| runs leaving area by > 1 | median time (s) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for s in table:
+        lines.append(
+            f"| {s['scenario']} | {s['config']} | {s['trials']} | {s['mean_distance']:.1f} "
+            f"| {s['median_distance']:.1f} | {s['max_distance']:.1f} | {s['mean_coverage']:.3f} "
+            f"| {s['left_area']} | {s['median_time']:.2f} |"
+        )
+    return "\n".join(lines)
+
+
+def params(options: Options) -> list[dict[str, Any]]:
+    """The trials of a run, configuration-major."""
+    return [
+        {"kind": k, "seed": s, "config": c, "horizon": options.horizon}
+        for c in options.configs
+        for k in options.kinds
+        for s in range(options.trials)
+    ]
+
+
+def main(run: RunOptions, options: Options) -> list[Path]:
+    """Run the study into ``run.out``: ``anneal.jsonl``, ``anneal_summary.json``, ``anneal.md``."""
+    out = run.prepare()
+    with run.executor() as ex:
+        rows = run_trials(
+            TABLE,
+            params(options),
+            out,
+            executor=ex,
+            progress=not run.quiet,
+            label="anneal",
+            resume=not run.fresh,
+        )
+    table = summary(rows)
+    text = markdown(table)
+    if not run.quiet:
+        print(text)
+    return [TABLE.path(out), *write_summary(out, "anneal", table, text)]
+
 
 if __name__ == "__main__":
-    p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("--trials", type=int, default=100)
-    p.add_argument("--workers", type=int, default=2)
-    a = p.parse_args()
-    anneal.run(Path(__file__).parent / "results", trials=a.trials, workers=a.workers)
+    from studies.cli import main as cli_main
+
+    sys.exit(cli_main(["anneal", "--out", str(Path(__file__).parent / "results" / "anneal"), *sys.argv[1:]]))

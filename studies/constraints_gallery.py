@@ -1,7 +1,8 @@
 """Constraints gallery: one scenario planned unconstrained, with a speed limit, with obstacles, with
 VisitAll, and with area bounds plus the time-prior update; a figure each and their metrics.
 
-Writes ``studies/results/gallery/*.png`` and ``studies/results/constraints_gallery.json``.
+Writes ``studies/results/gallery/*.png`` and ``studies/results/constraints_gallery.json`` (with
+provenance).
 
     python studies/constraints_gallery.py [--scenario A] [--seed 1] [--solver clarabel]
 """
@@ -9,10 +10,11 @@ Writes ``studies/results/gallery/*.png`` and ``studies/results/constraints_galle
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
+from typing import Any
 
 import pmht_opt as po
+from studies.report import write_json
 
 
 def main() -> None:
@@ -26,7 +28,10 @@ def main() -> None:
     sc = po.paper_scenario(args.scenario, seed=args.seed)
     free = po.plan_pmht(sc, po.PMHTConfig(solver=args.solver))
     vmax = round(0.7 * free.max_speed, 4)
-    obstacles = [po.CircleObstacle((3.0, 6.5), 0.9), po.PolygonObstacle([(6, 3.5), (7.5, 3.5), (7.5, 6), (6, 6)])]
+    obstacles = [
+        po.CircleObstacle((3.0, 6.5), 0.9),
+        po.PolygonObstacle([(6, 3.5), (7.5, 3.5), (7.5, 6), (6, 6)]),
+    ]
     cases = {
         "unconstrained": po.PMHTConfig(solver=args.solver),
         "speed_limit": po.PMHTConfig(solver=args.solver, constraints=[po.SpeedLimit(vmax)]),
@@ -39,7 +44,7 @@ def main() -> None:
     }
     figdir = args.out / "gallery"
     figdir.mkdir(parents=True, exist_ok=True)
-    table = {}
+    table: dict[str, dict[str, Any]] = {}
     for name, cfg in cases.items():
         res = po.plan_pmht(sc, cfg)
         m = res.metrics()
@@ -56,13 +61,18 @@ def main() -> None:
             "wall_time_s": m["wall_time"],
         }
         table[name] = row
-        title = f"{sc.name}: {name.replace('_', ' ')}; distance {res.total_distance:.1f}, cov@0.3 {res.coverage():.0%}"
-        res.plot(figdir / f"{name}.png", title=title)
-        print(f"{name:24s} distance {row['total_distance']:7.1f}  cov@0.3 {row['coverage_0.3']:.2f}  "
-              f"excursion {row['max_excursion']:.2f}  violation {row['max_violation']:.1e}  {row['wall_time_s']:.1f} s")
-    out = args.out / "constraints_gallery.json"
-    out.write_text(json.dumps({"scenario": sc.name, "speed_limit": vmax, "cases": table}, indent=2, default=str))
-    print(f"wrote {out}")
+        title = (
+            f"{sc.name}: {name.replace('_', ' ')}; distance {res.total_distance:.1f}, "
+            f"cov@0.3 {res.coverage():.0%}"
+        )
+        print(f"wrote: {res.plot(figdir / f'{name}.png', title=title)}")
+        print(
+            f"{name:24s} distance {row['total_distance']:7.1f}  cov@0.3 {row['coverage_0.3']:.2f}  "
+            f"excursion {row['max_excursion']:.2f}  violation {row['max_violation']:.1e}  "
+            f"{row['wall_time_s']:.1f} s"
+        )
+    payload = {"scenario": sc.name, "speed_limit": vmax, "cases": table}
+    print(f"wrote: {write_json(args.out / 'constraints_gallery.json', payload)}")
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ def test_scaling_study_quick(tmp_path: Path) -> None:
     args = ["study", "scaling", "--quick", "--backends", "kalman", "--out", str(tmp_path), "--quiet"]
     code = cli_main(args)
     assert code == 0
-    for name in ("scaling.csv", "scaling.json", "scaling.md", "scaling.png"):
+    for name in ("scaling.jsonl", "scaling.json", "scaling.md", "scaling.png"):
         assert (tmp_path / name).stat().st_size > 0
     summary = json.loads((tmp_path / "scaling.json").read_text())
     assert summary["fastest"] == "kalman"

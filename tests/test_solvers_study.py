@@ -7,16 +7,17 @@ import math
 from pathlib import Path
 
 from pmht_opt.cli import main
-from pmht_opt.montecarlo import read_table
+from studies.compare_solvers import MSTEPS, PLANS
+from studies.store import read_rows
 
 
 def test_quick_solvers_study(tmp_path: Path) -> None:
     assert main(["study", "solvers", "--quick", "--out", str(tmp_path), "--quiet"]) == 0
-    for name in ("solvers.md", "solvers.png", "solvers.json", "solvers_msteps.csv", "solvers_plans.csv"):
+    for name in ("solvers.md", "solvers.png", "solvers.json", "solvers_msteps.jsonl", "solvers_plans.jsonl"):
         assert (tmp_path / name).stat().st_size > 0, name
     assert (tmp_path / "solvers.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
-    rows = read_table(tmp_path / "solvers_msteps.csv")
+    rows = read_rows(tmp_path / "solvers_msteps.jsonl", MSTEPS, "solvers_msteps")
     unc = [r for r in rows if r["part"] == "unconstrained"]
     assert {r["case"] for r in unc} == {"unconstrained-early", "unconstrained-late"}
     for r in unc:
@@ -49,7 +50,7 @@ def test_quick_solvers_study(tmp_path: Path) -> None:
         assert osqp["max_pos_diff_same"] < 1e-2
         assert osqp["objective_gap"] > -1e-6
 
-    plans = read_table(tmp_path / "solvers_plans.csv")
+    plans = read_rows(tmp_path / "solvers_plans.jsonl", PLANS.schema, PLANS.name)
     kinds = {r["backend"]: r for r in plans}
     assert kinds["kalman"]["status"] == "optimal" and kinds["kalman"]["max_pos_diff"] == 0.0
     assert kinds["clarabel"]["status"] == "optimal" and kinds["clarabel"]["max_pos_diff"] < 1e-4

@@ -1,49 +1,79 @@
-"""The study commands: table1 end to end on a small budget, resume, anneal study summary."""
+"""The study commands end to end on tiny budgets: files written, resume, verify, exits, import hygiene."""
 
 from __future__ import annotations
 
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
 
 from pmht_opt.cli import main
-from pmht_opt.montecarlo import read_table
-from pmht_opt.studies import anneal, table1
+from studies import anneal, table1
+from studies.store import read_rows
 
 
 def test_table1_writes_table_and_figures_and_resumes(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    args = ["study", "table1", "--trials", "1", "--methods", "ga", "pmht", "--out", str(tmp_path)]
+    args = [
+        "study",
+        "table1",
+        "--trials",
+        "1",
+        "--methods",
+        "ga",
+        "pmht",
+        "--horizon",
+        "40",
+        "--out",
+        str(tmp_path),
+    ]
     assert main([*args, "--quiet"]) == 0
     out = capsys.readouterr().out
-    assert "| A | GA-TSP | 1 |" in out and "117.8" in out  # the paper's figure next to ours
-    rows = read_table(tmp_path / "table1.csv")
+    assert (
+        f"wrote: {tmp_path / 'table1.jsonl'}" in out
+        and f"wrote: {tmp_path / 'figure1_iterations.png'}" in out
+    )
+    rows = read_rows(tmp_path / "table1.jsonl", table1.TABLE.schema, "table1")
     assert [(r["kind"], r["method"]) for r in rows] == [(k, m) for k in "ABC" for m in ("ga", "pmht")]
-    assert all(r["error"] == "" for r in rows)
+    assert all(r["error_class"] == "" for r in rows)
     assert all(r["coverage"] == 1.0 for r in rows if r["method"] == "ga")
-    assert all(0.0 < r["coverage"] < 1.0 for r in rows if r["method"] == "pmht")
-    for name in (
-        "table1.md",
-        "table1_summary.json",
-        "figure1_iterations.png",
-        "figure5_locales_per_platform.png",
-    ):
+    for name in ("table1.md", "figure5_locales_per_platform.png", "figure2_scenario_A.png"):
         assert (tmp_path / name).stat().st_size > 0
-    for n, kind in ((2, "A"), (3, "B"), (4, "C")):
-        assert (tmp_path / f"figure{n}_scenario_{kind}.png").stat().st_size > 0
-    # A second run with one more trial reuses the finished ones (their timings are unchanged).
-    assert main([*args[:3], "2", *args[4:], "--no-figures"]) == 0
-    assert "(resumed)" in capsys.readouterr().err
-    again = read_table(tmp_path / "table1.csv")
+    summary = json.loads((tmp_path / "table1_summary.json").read_text())
+    assert summary["provenance"]["cpu_count"] >= 1 and "numpy" in summary["provenance"]["packages"]
+    assert "| A | GA-TSP | 1 |" in (tmp_path / "table1.md").read_text()
+    # One more trial reuses the finished ones (their timings are unchanged).
+    assert main(["study", "table1", "--trials", "2", *args[4:], "--no-figures", "--quiet"]) == 0
+    again = read_rows(tmp_path / "table1.jsonl", table1.TABLE.schema, "table1")
     assert len(again) == 12
     first = {(r["kind"], r["method"]): r["wall"] for r in rows}
     assert all(first[(r["kind"], r["method"])] == r["wall"] for r in again if r["seed"] == 0)
 
 
-def test_table1_rejects_bad_trials(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["study", "table1", "--trials", "0", "--out", str(tmp_path)]) == 2
-    assert "--trials" in capsys.readouterr().err
+def test_anneal_verify_passes_then_fails_on_a_tampered_row(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    base = ["study", "anneal", "--trials", "2", "--configs", "plain", "annealed", "--kinds", "B"]
+    base += ["--horizon", "30", "--out", str(tmp_path)]
+    assert main([*base, "--quiet"]) == 0
+    capsys.readouterr()
+    assert main([*base, "--verify", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "not compared: time (wall-clock time differs from run to run)" in out and "agrees" in out
+    path = tmp_path / "anneal.jsonl"
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    victim = max((r for r in rows if r["record"] == "row"), key=lambda r: r["trial"])  # verified first/last
+    victim["coverage"] = victim["coverage"] + 0.125
+    path.write_text("\n".join(json.dumps(r) for r in rows) + "\n")
+    assert main([*base, "--verify", "2"]) == 1
+    out = capsys.readouterr().out
+    assert f"MISMATCH trial {victim['trial']}: column 'coverage'" in out
 
 
 def test_table1_summary_and_paper_columns() -> None:
@@ -51,7 +81,7 @@ def test_table1_summary_and_paper_columns() -> None:
         {"kind": "B", "seed": s, "method": "pmht", "distance": d, "cpu": 1.0, "coverage": 0.7, "excursion": e}
         for s, (d, e) in enumerate([(70.0, 1.0), (80.0, 3.0), (90.0, 0.0)])
     ]
-    rows.append({"kind": "B", "seed": 3, "method": "pmht", "error": "SolverError: x"})
+    rows.append({"kind": "B", "seed": 3, "method": "pmht", "error": "x", "error_class": "SolverError"})
     (s,) = table1.summary(rows)
     assert s["trials"] == 3 and s["failed"] == 1
     assert s["mean_distance"] == 80.0 and s["median_distance"] == 80.0 and s["max_distance"] == 90.0
@@ -77,3 +107,108 @@ def test_anneal_summary_counts() -> None:
     (s,) = anneal.summary(rows)
     assert s["trials"] == 3 and s["left_area"] == 1 and s["median_distance"] == 81.0
     assert "| A | annealed | 3 |" in anneal.markdown([s])
+
+
+@pytest.mark.parametrize(
+    ("args", "field"),
+    [
+        (["table1", "--trials", "0"], "--trials"),
+        (["table1", "--workers", "0"], "--workers"),
+        (["anneal", "--trials", "0"], "--trials"),
+        (["anneal", "--verify", "-1"], "--verify"),
+        (["solvers", "--seeds", "-1"], "--seeds"),
+        (["solvers", "--iterations", "0"], "--iterations"),
+        (["scaling", "--quick", "--reps", "0"], "--reps"),
+        (["anneal", "--dask-scheduler", "notanaddress"], "--dask-scheduler"),
+        (["anneal", "--out", "{file}"], "is a file"),
+        (["anneal", "--out", "{file}/sub"], "cannot write"),
+    ],
+)
+def test_bad_inputs_are_config_errors_naming_the_option(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], field: str
+) -> None:
+    (tmp_path / "f").write_text("")
+    argv = ["study", *(a.replace("{file}", str(tmp_path / "f")) for a in args)]
+    if "--out" not in argv:
+        argv += ["--out", str(tmp_path / "out")]
+    started = time.perf_counter()
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert field in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert time.perf_counter() - started < 5
+    assert not (tmp_path / "out").exists()  # checked before any work starts
+
+
+def _imported(code: str) -> set[str]:
+    """Top-level and dotted module names imported by ``python -X importtime -c code``."""
+    done = subprocess.run(
+        [sys.executable, "-X", "importtime", "-c", code], capture_output=True, text=True, check=True
+    )
+    return {
+        line.rsplit("|", 1)[1].strip() for line in done.stderr.splitlines() if line.startswith("import time:")
+    }
+
+
+def test_the_core_imports_no_study_module() -> None:
+    for code in (
+        "import pmht_opt",
+        "import sys; from pmht_opt.cli import main; sys.argv[1:] = ['--help']; main()",
+    ):
+        try:
+            names = _imported(code)
+        except subprocess.CalledProcessError as err:  # --help exits 0 through SystemExit
+            raise AssertionError(err.stderr) from None
+        assert "pmht_opt" in names
+        assert not {n for n in names if n == "studies" or n.startswith("studies.")}, code
+        assert "resource" not in names and "tqdm" not in names and "pandas" not in names, code
+
+
+def test_python_m_studies_and_the_script_forms(tmp_path: Path) -> None:
+    done = subprocess.run([sys.executable, "-m", "studies", "--help"], capture_output=True, text=True)
+    assert done.returncode == 0 and "table1" in done.stdout and "python -m studies" in done.stdout
+    done = subprocess.run(
+        [sys.executable, "-m", "studies", "anneal", "--trials", "0"], capture_output=True, text=True
+    )
+    assert done.returncode == 2 and "--trials" in done.stderr
+
+
+def test_ctrl_c_exits_130_and_keeps_finished_rows(tmp_path: Path) -> None:
+    argv = ["study", "anneal", "--trials", "500", "--configs", "plain", "--kinds", "A", "--horizon", "20"]
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from pmht_opt.cli import main; sys.exit(main(sys.argv[1:]))",
+            *argv,
+            "--out",
+            str(tmp_path),
+            "--quiet",
+        ],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    path = tmp_path / "anneal.jsonl"
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and (not path.exists() or path.read_text().count('"record":"row"') < 2):
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1].startswith("pmht-opt study: interrupted; finished trials are kept")
+    rows = read_rows(path, anneal.TABLE.schema, "anneal")
+    assert 2 <= len(rows) < 500 and all(r["error_class"] == "" for r in rows)
+
+
+def test_a_missing_studies_extra_names_the_extra() -> None:
+    code = (
+        "import sys\n"
+        "sys.modules['pandas'] = None  # as if the extra were not installed\n"
+        "from pmht_opt.cli import main\n"
+        "sys.exit(main(sys.argv[1:]))"
+    )
+    done = subprocess.run([sys.executable, "-c", code, "study", "anneal"], capture_output=True, text=True)
+    assert done.returncode == 2
+    assert (
+        'pandas; install the extra: pip install ".[studies]"' in done.stderr
+        and "Traceback" not in done.stderr
+    )

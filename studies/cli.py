@@ -1,0 +1,147 @@
+"""The one parser of the studies: ``pmht-opt study NAME ...`` and ``python -m studies NAME ...``.
+
+Each study module provides a frozen ``Options`` dataclass (with ``add_arguments`` and ``from_args``),
+its results table ``TABLE`` and ``main(run, options) -> list of paths written``. This module adds the
+options every study shares (:class:`~studies.options.RunOptions`), turns the command line into the two
+typed option objects, and either runs the study or, with ``--verify K``, runs K stored trials again and
+compares them with their rows.
+
+Exit status: 0 done (or verified), 1 a verification mismatch, 2 a bad input or a failed study (the
+project's own error, one line), 130 interrupted (Ctrl-C; finished trials are kept).
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import importlib
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from types import ModuleType
+
+from pmht_opt.exceptions import MissingDependencyError, PmhtOptError
+from studies.options import RunOptions
+from studies.trials import TrialTable, local_executor, verify
+
+#: ``study name -> (module, one-line description)``.
+STUDIES: dict[str, tuple[str, str]] = {
+    "table1": ("studies.table1", "the paper's Table 1 and Figures 1-5, with what the paper lacked"),
+    "solvers": ("studies.compare_solvers", "M-step backends against the kalman reference: time, gaps"),
+    "scaling": ("studies.scaling", "plan time and peak memory as locales, horizon and platforms grow"),
+    "anneal": ("studies.anneal", "plain against annealed EM with both time-prior settings"),
+}
+
+
+#: What the ``studies`` extra installs.
+EXTRAS = ("pandas", "tqdm")
+
+
+def require_extras() -> None:
+    """Raise :class:`MissingDependencyError` naming the extra when pandas or tqdm is missing."""
+    missing = []
+    for name in EXTRAS:
+        try:
+            importlib.import_module(name)
+        except ModuleNotFoundError:
+            missing.append(name)
+    if missing:
+        raise MissingDependencyError(
+            f'the studies need {", ".join(missing)}; install the extra: pip install ".[studies]"'
+        )
+
+
+def _add_run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", type=Path, default=Path("study-results"), help="directory for the results")
+    p.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1: inline)")
+    p.add_argument(
+        "--dask-scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run the trials on the Dask cluster at ADDRESS (tcp://host:port); needs the dask extra",
+    )
+    p.add_argument("--fresh", action="store_true", help="start the results file afresh (default: resume)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar and no printed tables")
+    p.add_argument(
+        "--verify",
+        type=int,
+        default=0,
+        metavar="K",
+        help="run K stored trials again and compare them with their rows instead of running the study",
+    )
+
+
+def _module(name: str) -> ModuleType:
+    return importlib.import_module(STUDIES[name][0])
+
+
+def build_parser(prog: str = "pmht-opt study") -> argparse.ArgumentParser:
+    """The parser of every study's options."""
+    parser = argparse.ArgumentParser(prog=prog, description="Run one of the studies into a directory.")
+    names = parser.add_subparsers(dest="study", required=True, metavar="NAME")
+    for name, (_, text) in STUDIES.items():
+        sp = names.add_parser(name, help=text, description=text)
+        _add_run_options(sp)
+        _module(name).Options.add_arguments(sp)
+    return parser
+
+
+def run_verify(table: TrialTable, run: RunOptions, executor: cf.Executor | None = None) -> int:
+    """``--verify K``: print what was compared and every mismatch; 1 when there is one."""
+    rows, mismatches = verify(table, run.out, run.verify, executor=executor)
+    skipped = {name: c.reason for name, c in table.checks.items() if c.kind == "skip"}
+    close = {name: c for name, c in table.checks.items() if c.kind == "close"}
+    print(f"verify: {len(rows)} stored trials of {table.path(run.out)} run again")
+    for name, reason in skipped.items():
+        print(f"  not compared: {name} ({reason})")
+    for name, c in close.items():
+        print(f"  {name}: within rtol {c.rtol:g}, atol {c.atol:g} ({c.reason})")
+    print("  every other column: identical")
+    for m in mismatches:
+        print(f"MISMATCH {m}")
+    if mismatches:
+        print(f"verify: {len(mismatches)} mismatches", file=sys.stderr)
+        return 1
+    print("verify: every trial agrees with its row")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None, prog: str = "pmht-opt study") -> int:
+    """Parse ``argv``, run the study (or verify it) and print the paths written; return the exit status."""
+    try:
+        require_extras()
+    except MissingDependencyError as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
+        return 2
+    ns = build_parser(prog).parse_args(argv)
+    module = _module(ns.study)
+    try:
+        run = RunOptions(
+            out=ns.out,
+            workers=ns.workers,
+            dask_scheduler=ns.dask_scheduler,
+            fresh=ns.fresh,
+            quiet=ns.quiet,
+            verify=ns.verify,
+        )
+        options = module.Options.from_args(ns)
+        if run.verify:
+            executor = getattr(module, "verify_executor", None)
+            ex = executor() if executor is not None else local_executor(1)
+            try:
+                return run_verify(module.TABLE, run, ex)
+            finally:
+                ex.shutdown(wait=False, cancel_futures=True)
+        written: list[Path] = module.main(run, options)
+    except PmhtOptError as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(
+            f"{prog}: interrupted; finished trials are kept in {ns.out} (run the same command to resume).",
+            file=sys.stderr,
+        )
+        return 130
+    for path in written:
+        print(f"wrote: {path}")
+    return 0

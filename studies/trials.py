@@ -1,0 +1,445 @@
+"""Trials: run a function over many seeded trials, in parallel, into a results file that nothing can spoil.
+
+A *trial* is a dict of plain parameters (scenario, seed, method, ...); the study's trial function takes
+them as keyword arguments and returns a dict of results. :func:`run_trials` runs every trial that its
+results file (:mod:`studies.store`) does not already hold, on any :class:`concurrent.futures.Executor`
+(inline, :class:`~studies.pool.WorkerPool`, or a Dask cluster through :func:`dask_executor`), appends one
+row per finished trial, shows a tqdm progress bar, and returns the rows in the order of the trials,
+whatever order the workers finish in: the same trials give the same rows on 1 worker, 2 workers or Dask.
+
+What can go wrong, and what happens:
+
+- A trial raises: its row records the exception's class and message. The project's own errors
+  (:class:`~pmht_opt.exceptions.PmhtOptError`) and other exceptions are real results and stay; a resume
+  runs again only the *retryable* ones (:data:`RETRYABLE`: interrupts and crashed workers).
+- Ctrl-C: :class:`KeyboardInterrupt` stops the run; every finished row is already on disk, the trials in
+  flight leave no row, and the workers are terminated. A solver that catches SIGINT and reports an
+  interrupted solve is treated the same way.
+- A worker process dies: only its trial is affected; it runs again up to ``retries`` times (in a fresh
+  worker), then its row records the crash (retryable, so a later resume tries once more).
+- The results file was damaged: see :mod:`studies.store`; damaged rows are recomputed, the rest kept.
+
+Trial functions must be importable top-level functions (they are pickled to the workers) and must draw
+randomness only from the seeds in their parameters.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import contextlib
+import math
+import queue
+import socket
+import sys
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+from pmht_opt.exceptions import ConfigError, MissingDependencyError, SolverError
+from studies.pool import WorkerPool
+from studies.provenance import provenance
+from studies.store import ResultsFile, Row, Schema, load, trial_id
+
+TrialFn = Callable[..., Mapping[str, Any]]
+
+#: Exception classes of error rows that a resume runs again: interrupts and crashed workers are
+#: accidents of the run, not results of the trial.
+RETRYABLE = frozenset(
+    {"KeyboardInterrupt", "Interrupted", "WorkerCrashed", "BrokenProcessPool", "KilledWorker"}
+)
+#: How many times a trial whose worker died is run again within one run before it is recorded as a crash.
+RETRIES = 2
+
+
+@dataclass(frozen=True)
+class Check:
+    """How ``--verify`` compares a column of a recomputed trial with its stored row.
+
+    ``exact`` (the default): identical values. ``close``: numbers within ``rtol``/``atol``. ``skip``:
+    not compared. ``reason`` says why a column is not held to identity.
+    """
+
+    kind: str = "exact"
+    rtol: float = 0.0
+    atol: float = 0.0
+    reason: str = ""
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("exact", "close", "skip"):
+            raise ConfigError(f"check kind: expected exact, close or skip, got {self.kind!r}.")
+        if self.kind != "exact" and not self.reason:
+            raise ConfigError("a check that is not exact must state its reason.")
+
+    def agrees(self, stored: Any, fresh: Any) -> bool:
+        """Whether the two values agree under this check."""
+        if self.kind == "skip":
+            return True
+        return _agree(stored, fresh, self.rtol if self.kind == "close" else 0.0, self.atol)
+
+
+def _agree(a: Any, b: Any, rtol: float, atol: float) -> bool:
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_agree(x, y, rtol, atol) for x, y in zip(a, b, strict=True))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_agree(a[k], b[k], rtol, atol) for k in a)
+    num = (int, float)
+    if isinstance(a, num) and isinstance(b, num) and not isinstance(a, bool) and not isinstance(b, bool):
+        if math.isnan(a) or math.isnan(b):
+            return math.isnan(a) and math.isnan(b)
+        return a == b or abs(a - b) <= atol + rtol * abs(a)
+    return bool(a == b)
+
+
+@dataclass(frozen=True)
+class TrialTable:
+    """A study's table: its name (the file is ``<name>.jsonl``), trial function, schema and checks.
+
+    ``checks`` maps result columns to how ``--verify`` compares them (exact when absent).
+    """
+
+    name: str
+    fn: TrialFn
+    schema: Schema
+    checks: Mapping[str, Check] = field(default_factory=dict)
+
+    def path(self, out_dir: Path) -> Path:
+        """The results file in ``out_dir``."""
+        return Path(out_dir) / f"{self.name}.jsonl"
+
+
+@dataclass(frozen=True)
+class TrialError:
+    """What a trial raised, in a form that always pickles back from a worker."""
+
+    error_class: str
+    message: str
+
+
+class Interrupted(Exception):  # noqa: N818 (the name is what an error row records)
+    """A trial that a solver reported as interrupted (it caught SIGINT itself)."""
+
+
+def call_trial(fn: TrialFn, params: Mapping[str, Any]) -> Mapping[str, Any] | TrialError:
+    """Run one trial (in a worker): its results, or the exception it raised as a :class:`TrialError`.
+
+    ``KeyboardInterrupt`` propagates: an interrupt is never a trial's result. A solver status that
+    says the solve was interrupted becomes ``KeyboardInterrupt`` too.
+    """
+    try:
+        return dict(fn(**params))
+    except SolverError as err:
+        if "interrupt" in str(getattr(err, "status", "")).lower():
+            raise KeyboardInterrupt from err
+        return TrialError(type(err).__name__, str(err) or type(err).__name__)
+    except Exception as err:  # the row records it; the study goes on
+        return TrialError(type(err).__name__, str(err) or type(err).__name__)
+
+
+class InlineExecutor(cf.Executor):
+    """Runs each task when it is submitted, in this process (one worker, no pickling)."""
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> cf.Future[Any]:
+        """Run ``fn`` now; its exception (never a ``KeyboardInterrupt``) goes into the future."""
+        fut: cf.Future[Any] = cf.Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except Exception as err:
+            fut.set_exception(err)
+        return fut
+
+
+def local_executor(workers: int, *, max_tasks_per_child: int | None = None) -> cf.Executor:
+    """An inline executor for 1 worker, else a :class:`~studies.pool.WorkerPool` of spawned processes.
+
+    Spawned, not forked: the parent may hold solver threads, and OR-Tools and HiGHS cannot share a
+    process. ``max_tasks_per_child=1`` forces a fresh process per trial even for 1 worker.
+    """
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ConfigError(f"--workers: expected a positive integer, got {workers!r}.")
+    if workers == 1 and max_tasks_per_child is None:
+        return InlineExecutor()
+    return WorkerPool(workers, max_tasks_per_child=max_tasks_per_child)
+
+
+_DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
+
+
+def check_dask_address(address: str) -> str:
+    """``address`` as a Dask scheduler address (``tcp://host:port``; a bare ``host:port`` means tcp).
+
+    Raises
+    ------
+    ConfigError
+        Not of that form (checked before any connection is tried).
+    """
+    text = address.strip()
+    full = text if "://" in text else f"tcp://{text}"
+    parts = urlsplit(full)
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if parts.scheme not in _DASK_SCHEMES or not parts.hostname or (parts.scheme != "inproc" and not port):
+        raise ConfigError(f"--dask-scheduler: expected an address such as tcp://host:8786, got {address!r}.")
+    return full
+
+
+@contextlib.contextmanager
+def dask_executor(
+    address: str | None = None, *, connect_timeout: float = 5.0, **cluster: Any
+) -> Iterator[cf.Executor]:
+    """An executor on a Dask cluster: the scheduler at ``address``, or a new ``LocalCluster(**cluster)``.
+
+    A malformed address fails at once; a well-formed one that does not answer within
+    ``connect_timeout`` seconds raises :class:`ConfigError`. Needs the ``dask`` extra.
+    """
+    try:
+        from distributed import Client, LocalCluster
+    except ModuleNotFoundError:
+        raise MissingDependencyError(
+            "Dask execution needs dask.distributed; install the extra: pip install '.[dask]'."
+        ) from None
+    local = None
+    if address is not None:
+        address = check_dask_address(address)
+        parts = urlsplit(address)
+        if parts.scheme == "tcp" and parts.hostname and parts.port:
+            try:  # a refused or unreachable port fails here in milliseconds, not after Dask's retries
+                socket.create_connection((parts.hostname, parts.port), timeout=connect_timeout).close()
+            except OSError as err:
+                raise ConfigError(f"--dask-scheduler {address}: cannot connect ({err}).") from None
+    try:
+        if address is None:
+            local = LocalCluster(**cluster)
+            client = Client(local)
+        else:
+            client = Client(address, timeout=f"{connect_timeout}s")
+    except (OSError, TimeoutError) as err:
+        raise ConfigError(f"--dask-scheduler {address}: cannot connect ({err}).") from None
+    try:
+        yield client.get_executor()
+    finally:
+        client.close()
+        if local is not None:
+            local.close()
+
+
+def _is_crash(err: BaseException) -> bool:
+    return isinstance(err, cf.BrokenExecutor) or type(err).__name__ in RETRYABLE - {"KeyboardInterrupt"}
+
+
+def _progress_bar(total: int, initial: int, label: str, show: bool) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=initial, desc=label, disable=not show, file=sys.stderr, smoothing=0.1)
+
+
+def run_trials(
+    table: TrialTable,
+    trials: Sequence[Mapping[str, Any]],
+    out_dir: str | Path,
+    *,
+    executor: cf.Executor | None = None,
+    workers: int = 1,
+    progress: bool = True,
+    label: str | None = None,
+    resume: bool = True,
+    retries: int = RETRIES,
+) -> list[Row]:
+    """Run ``table.fn(**trial)`` for every trial not yet in ``out_dir/<table.name>.jsonl``.
+
+    Parameters
+    ----------
+    table
+        The study's table: name, trial function and schema.
+    trials
+        Parameters of each trial; two trials with the same parameters are one trial.
+    out_dir
+        Directory of the results file (created if missing).
+    executor
+        Where to run the trials; default :func:`local_executor` with ``workers``. Not shut down here
+        unless created here.
+    progress
+        Show a progress bar on stderr.
+    resume
+        Keep and reuse the valid rows already in the file (retryable error rows run again); ``False``
+        starts the file afresh.
+    retries
+        Runs again, within this run, of a trial whose worker died, before its crash is recorded.
+
+    Returns
+    -------
+    list of dict
+        One row per trial, in the order of ``trials``: ``trial`` (its id), the parameters, the results,
+        ``error_class`` and ``error`` (empty for a trial that succeeded).
+    """
+    params = [dict(t) for t in trials]
+    for p in params:
+        table.schema.check_params(p)
+    ids = [trial_id(p) for p in params]
+    by_id = dict(zip(ids, params, strict=True))
+    unique = list(by_id)
+    path = table.path(Path(out_dir))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    own = executor is None
+    with ResultsFile(path, table.schema, table.name, provenance(), resume=resume) as store:
+        done = {k for k in unique if k in store.rows and store.rows[k]["error_class"] not in RETRYABLE}
+        todo = [k for k in unique if k not in done]
+        bar = _progress_bar(len(unique), len(unique) - len(todo), label or table.name, progress)
+        ex = local_executor(workers) if executor is None else executor
+        try:
+            if isinstance(ex, InlineExecutor):
+                _run_inline(table, todo, by_id, store, bar)
+            else:
+                _run_parallel(table, todo, by_id, store, bar, ex, retries)
+        finally:
+            bar.close()
+            if own:
+                ex.shutdown(wait=False, cancel_futures=True)
+        return [_public(store.rows[k]) for k in ids]
+
+
+def _public(row: Mapping[str, Any]) -> Row:
+    return {k: v for k, v in row.items() if k != "record"}
+
+
+def _record(store: ResultsFile, params: Mapping[str, Any], out: Any, bar: Any) -> None:
+    if isinstance(out, TrialError):
+        store.append(params, error_class=out.error_class, error=out.message)
+        bar.set_postfix_str(f"last error: {out.error_class}", refresh=False)
+    else:
+        store.append(params, out)
+    bar.update(1)
+
+
+def _run_inline(
+    table: TrialTable, todo: Sequence[str], by_id: Mapping[str, dict[str, Any]], store: ResultsFile, bar: Any
+) -> None:
+    for key in todo:
+        _record(store, by_id[key], call_trial(table.fn, by_id[key]), bar)
+
+
+def _run_parallel(
+    table: TrialTable,
+    todo: Sequence[str],
+    by_id: Mapping[str, dict[str, Any]],
+    store: ResultsFile,
+    bar: Any,
+    ex: cf.Executor,
+    retries: int,
+) -> None:
+    attempts: dict[str, int] = {}
+    pending: dict[cf.Future[Any], str] = {}
+    # Futures report here when done: waiting costs the same however many are pending.
+    finished: queue.SimpleQueue[cf.Future[Any]] = queue.SimpleQueue()
+
+    def submit(key: str) -> None:
+        try:
+            fut = ex.submit(call_trial, table.fn, by_id[key])
+        except (cf.BrokenExecutor, RuntimeError) as err:  # an executor that can take no more work
+            record_crash(key, err)
+            return
+        pending[fut] = key
+        fut.add_done_callback(finished.put)
+
+    def crash(key: str, err: BaseException) -> None:
+        attempts[key] = attempts.get(key, 0) + 1
+        if attempts[key] <= retries:
+            submit(key)
+        else:
+            record_crash(key, err)
+
+    def record_crash(key: str, err: BaseException) -> None:
+        runs = attempts.get(key, 0)
+        message = f"{type(err).__name__}: {err}" + (f" (on each of {runs} runs)" if runs > 1 else "")
+        _record(store, by_id[key], TrialError("WorkerCrashed", message), bar)
+
+    try:
+        for key in todo:
+            submit(key)
+        while pending:
+            try:
+                fut = finished.get(timeout=0.5)  # a timeout keeps Ctrl-C prompt on every platform
+            except queue.Empty:
+                continue
+            key = pending.pop(fut)
+            err = fut.exception()
+            if err is None:
+                _record(store, by_id[key], fut.result(), bar)
+            elif isinstance(err, KeyboardInterrupt):
+                raise KeyboardInterrupt from err
+            elif _is_crash(err):
+                crash(key, err)
+            else:
+                _record(store, by_id[key], TrialError(type(err).__name__, str(err)), bar)
+    finally:
+        for fut in pending:
+            fut.cancel()
+
+
+# ------------------------------------------------------------------------------------------ verify
+
+
+@dataclass(frozen=True)
+class Mismatch:
+    """A recomputed trial that disagrees with its stored row."""
+
+    trial: str
+    column: str
+    stored: Any
+    fresh: Any
+
+    def __str__(self) -> str:
+        return (
+            f"trial {self.trial}: column {self.column!r}: stored {self.stored!r}, recomputed {self.fresh!r}"
+        )
+
+
+def pick_evenly(n: int, k: int) -> list[int]:
+    """``k`` indices spread evenly over ``range(n)`` (first and last included when ``k >= 2``)."""
+    k = min(k, n)
+    if k <= 0:
+        return []
+    if k == 1:
+        return [n // 2]
+    return sorted({round(i * (n - 1) / (k - 1)) for i in range(k)})
+
+
+def verify(
+    table: TrialTable, out_dir: str | Path, k: int, *, executor: cf.Executor | None = None
+) -> tuple[list[Row], list[Mismatch]]:
+    """Run ``k`` stored trials again (evenly spaced in trial-id order) and compare them with their rows.
+
+    Every result column is compared under its :class:`Check` (identity unless the table says otherwise,
+    with its reason); so is the error class of a trial that failed.
+
+    Returns
+    -------
+    (rows, mismatches)
+        The rows that were checked and every disagreement found.
+    """
+    path = table.path(Path(out_dir))
+    if not path.exists():
+        raise ConfigError(f"--verify: no results file {path}.")
+    rows = sorted(load(path, table.schema, table.name).rows.values(), key=lambda r: r["trial"])
+    if not rows:
+        raise ConfigError(f"--verify: {path} holds no valid row.")
+    chosen = [rows[i] for i in pick_evenly(len(rows), k)]
+    ex = executor or InlineExecutor()
+    futures = [ex.submit(call_trial, table.fn, {n: r[n] for n in table.schema.params}) for r in chosen]
+    mismatches: list[Mismatch] = []
+    for row, fut in zip(chosen, futures, strict=True):
+        out = fut.result()
+        if isinstance(out, TrialError) or row["error_class"]:
+            fresh_class = out.error_class if isinstance(out, TrialError) else ""
+            if fresh_class != row["error_class"]:
+                mismatches.append(Mismatch(row["trial"], "error_class", row["error_class"], fresh_class))
+            continue
+        fresh = table.schema.normalise(out)
+        for name in table.schema.values:
+            check = table.checks.get(name, Check())
+            if not check.agrees(row.get(name), fresh.get(name)):
+                mismatches.append(Mismatch(row["trial"], name, row.get(name), fresh.get(name)))
+    return chosen, mismatches
