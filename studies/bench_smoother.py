@@ -14,6 +14,8 @@ Candidates:
 * ``banded_kkt``: :class:`solvers.banded.BandedSmoother`, LU of the banded optimality system with
   the dynamics as constraints, one step of iterative refinement (the chosen kernel).
 * ``banded_kkt_norefine``: the same without the refinement step.
+* ``banded_kkt_function``: :func:`solvers.banded.banded_smoother`, the functional form (a cache
+  lookup of the assembled band, then the same solve).
 * ``kkt_solve_banded``: the same system unscaled, ``scipy.linalg.solve_banded`` per platform (both
   axes as right-hand sides), no refinement: the textbook use of scipy.
 * ``normal_cholesky``: the information form ``(D' Q^-1 D + P) x = P y`` by a banded Cholesky
@@ -47,7 +49,7 @@ import numpy as np
 import scipy
 import scipy.linalg
 
-from solvers.banded import BandedSmoother
+from solvers.banded import BandedSmoother, banded_smoother
 from solvers.kalman import rts_smoother
 
 Array = np.ndarray
@@ -117,6 +119,11 @@ def make_banded(F: Array, Q: Array, W: Array, refine: int) -> Solver:
         return smoother.solve(r, x0, y, W, refine=refine).means
 
     return run
+
+
+def run_banded_function(F: Array, Q: Array, r: float, W: Array, y: Array, x0: Array) -> Array:
+    """The functional form, which finds its assembled band in a cache."""
+    return banded_smoother(F, Q, E1, r, x0, y, W).means
 
 
 def run_kkt_solve_banded(F: Array, Q: Array, r: float, W: Array, y: Array, x0: Array) -> Array:
@@ -402,6 +409,7 @@ def bench_case(
         "rts_smoother": run_rts,
         "banded_kkt": make_banded(F, Q, W, refine=1),
         "banded_kkt_norefine": make_banded(F, Q, W, refine=0),
+        "banded_kkt_function": run_banded_function,
         "kkt_solve_banded": run_kkt_solve_banded,
         "normal_cholesky": make_normal(0),
         "normal_cholesky_refined": make_normal(3),
