@@ -278,9 +278,9 @@ class BandedSmoother:
             ``(B, T)`` non-negative weights ``w_t``.
         refine
             Steps of iterative refinement after the LU solve (``>= 0``). One brings the
-            componentwise backward error to the rounding level (module docstring) for about a
-            third more time; ``0`` is faster but only normwise stable, which can cost digits on
-            long coasting stretches with a small ``r``.
+            componentwise backward error to the rounding level (module docstring) for about half
+            as much time again; ``0`` is faster but only normwise stable, which can cost digits
+            on long coasting stretches with a small ``r``.
         check
             Also compute the componentwise backward error of the final solution (reported in
             :attr:`BandedSmootherResult.backward_error`), at the cost of two residual evaluations.
