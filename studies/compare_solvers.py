@@ -227,6 +227,8 @@ def run(
 def _write(
     out_dir: Path, settings: Mapping[str, Any], mstep_rows: Rows, plan_rows: Rows, progress: bool
 ) -> tuple[dict[str, Any], list[Path]]:
+    """Summaries, ``solvers.json``, ``solvers.md`` and ``solvers.png`` from the raw rows; the same
+    function serves a run and ``--tables-only``, so both write the same text from the same rows."""
     mstep_summary = summarise_msteps(mstep_rows)
     plan_summary = summarise_plans(plan_rows)
     prov = provenance()

@@ -86,7 +86,8 @@ class _Trials:
     resume: bool
 
     def __call__(self, trials: list[dict[str, Any]], label: str, first: bool = False) -> list[dict[str, Any]]:
-        # Only the first batch may start the file afresh; later ones add to it.
+        """Run ``trials`` under ``label``; only the first batch may start the file afresh (``--fresh``),
+        later ones add to it."""
         ex = verify_executor()
         try:
             return run_trials(
@@ -163,6 +164,7 @@ def run(
 
 
 def _write(out_dir: Path, summary: dict[str, Any], progress: bool) -> list[Path]:
+    """``scaling.json``, ``scaling.md`` and ``scaling.png``; the paths written, the table first."""
     text = markdown(summary)
     written = [
         TABLE.path(out_dir),

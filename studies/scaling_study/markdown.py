@@ -27,14 +27,17 @@ def fmt(x: Any, digits: int = 3) -> str:
 
 
 def _row(cells: Sequence[Any]) -> str:
+    """One table row."""
     return "| " + " | ".join(str(c) for c in cells) + " |"
 
 
 def _header(cells: Sequence[str]) -> list[str]:
+    """A table's header and its rule."""
     return [_row(cells), _row(["---"] * len(cells))]
 
 
 def _gate_name(gate: str) -> str:
+    """The E-step mode as the tables name it."""
     return "gated" if gate == "auto" else "dense"
 
 

@@ -34,6 +34,7 @@ def select(rows: Rows, **match: Any) -> list[Mapping[str, Any]]:
 
 
 def _median(rows: Rows, key: str) -> float:
+    """Median of column ``key`` over ``rows``."""
     return median(r[key] for r in rows)
 
 

@@ -35,8 +35,8 @@ ACCEPT = " (accept inaccurate)"
 #: plans would give if the planner took those solves.
 PLAN_VARIANTS = ("cvxpy/CLARABEL" + ACCEPT,)
 
-#: cvxpy solvers left out of ``--quick``: HiGHS's active-set QP and SCS's compilation of cones take
-#: minutes on the quick problems (docs/decisions.md section 8.3); the full study reports them.
+#: cvxpy solvers left out of ``--quick``: HiGHS's active-set QP and SCS's compilation of cones are
+#: slow even on the quick problems (docs/decisions.md section 8.3); the full study reports them.
 QUICK_SKIP = ("HIGHS", "SCS")
 
 

@@ -46,6 +46,7 @@ def fmt_ms(x: Any) -> str:
 
 
 def _intro(settings: Mapping[str, Any], prov: Mapping[str, Any]) -> list[str]:
+    """The title and how every number below was measured and defined."""
     return [
         "# Study 2: M-step backends",
         "",

@@ -131,6 +131,8 @@ def _measure(
     constraints: tuple[Constraint, ...],
     made: list[MStep],
 ) -> Measured:
+    """:func:`measure` without the failure handling; backends built are added to ``made`` so the caller
+    closes them whatever happens."""
     t0 = time.perf_counter()
     ms = build(scenario, job, constraints)
     made.append(ms)

@@ -118,6 +118,7 @@ def make_row(
 
 
 def _base(it: Iterate, part: str, case: str, seed: int, reference: str, constraints: str) -> Row:
+    """The columns every row of one M-step shares: what was solved and against which reference."""
     sc = it.scenario
     return {
         "part": part,
@@ -133,6 +134,7 @@ def _base(it: Iterate, part: str, case: str, seed: int, reference: str, constrai
 
 
 def _tick(bar: Any, text: str) -> None:
+    """Advance the progress bar (if any) past the measurement ``text`` names."""
     if bar is not None:
         bar.set_postfix_str(text, refresh=False)
         bar.update(1)
@@ -172,6 +174,7 @@ def constrained_jobs(labels: Sequence[str]) -> list[Job]:
 
 
 def _solved(m: Measured) -> np.ndarray | None:
+    """The paths of a reference solve, if it is one to compare with (optimal, not merely accepted)."""
     return m.states if m.states is not None and m.status == STATUS_OK else None
 
 

@@ -28,6 +28,7 @@ _KEEP = 4
 
 
 def _remember(key: tuple[str, int, int, int | None], positions: np.ndarray, distance: float) -> None:
+    """Keep a kalman plan, dropping the oldest beyond :data:`_KEEP`."""
     while len(_KALMAN_PLANS) >= _KEEP:
         _KALMAN_PLANS.pop(next(iter(_KALMAN_PLANS)))
     _KALMAN_PLANS[key] = (positions.copy(), distance)
