@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 from pmht_opt.cli import main as cli_main
+from studies.scaling_study.design import scaling_scenario
+from studies.scaling_study.measure import agreement, time_plan
+from studies.scaling_study.summary import fit_slope
 
 
 def test_scaling_study_quick(tmp_path: Path) -> None:
@@ -21,3 +25,20 @@ def test_scaling_study_quick(tmp_path: Path) -> None:
     assert all(a["assignment_equal"] for a in summary["agreement"])
     assert "## Gated against dense" in (tmp_path / "scaling.md").read_text()
     assert cli_main(["study", "scaling", "--quick", "--reps", "0", "--out", str(tmp_path), "--quiet"]) == 2
+
+
+def test_one_plan_is_measured_in_process() -> None:
+    sc = scaling_scenario(30, 40, 2, seed=0)
+    gated = time_plan(sc, "kalman", "auto", 5)
+    # The initial E-step and one per iteration, read from the plan's history; dense ones never gate.
+    assert gated["estep_calls"] == 6 and 0 <= gated["estep_gated_calls"] <= 6
+    assert time_plan(sc, "kalman", "off", 5)["estep_gated_calls"] == 0
+    assert gated["peak_rss_mib"] >= gated["base_rss_mib"] > 0
+    agree = agreement(sc, "kalman", 5)
+    assert agree["assignment_equal"] and agree["estep_map_equal"]
+    assert agree["estep_W_rel"] < 1e-12
+
+
+def test_fit_slope() -> None:
+    assert math.isclose(fit_slope([1, 2, 4], [3, 12, 48]), 2.0)
+    assert math.isnan(fit_slope([1], [1])) and math.isnan(fit_slope([2, 2], [1, 3]))

@@ -6,18 +6,39 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
+import pytest
+
+import solvers
+from pmht_opt import PMHTConfig, plan_pmht
 from pmht_opt.cli import main
-from studies.compare_solvers import MSTEPS, PLANS
+from pmht_opt.exceptions import InfeasibleError, SolverError, UnknownSolverError
+from studies.solver_study.backends import (
+    STATUS_FAILED,
+    STATUS_INACCURATE,
+    STATUS_INFEASIBLE,
+    STATUS_NA,
+    STATUS_OK,
+    classify,
+    cvxpy_takes,
+    error_status,
+)
+from studies.solver_study.iterates import make_iterate, study_scenario
+from studies.solver_study.msteps import MSTEPS, MSTEPS_NAME
+from studies.solver_study.plans import PLANS
 from studies.store import read_rows
 
 
 def test_quick_solvers_study(tmp_path: Path) -> None:
-    assert main(["study", "solvers", "--quick", "--out", str(tmp_path), "--quiet"]) == 0
+    # CLARABEL through cvxpy (and its tight and accept-inaccurate rows) and GLOP, an LP-only solver
+    # that must come out 'n/a': the other cvxpy solvers only add time.
+    args = ["study", "solvers", "--quick", "--cvxpy-solvers", "CLARABEL", "GLOP", "--repeats", "1"]
+    assert main([*args, "--out", str(tmp_path), "--quiet"]) == 0
     for name in ("solvers.md", "solvers.png", "solvers.json", "solvers_msteps.jsonl", "solvers_plans.jsonl"):
         assert (tmp_path / name).stat().st_size > 0, name
     assert (tmp_path / "solvers.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
-    rows = read_rows(tmp_path / "solvers_msteps.jsonl", MSTEPS, "solvers_msteps")
+    rows = read_rows(tmp_path / "solvers_msteps.jsonl", MSTEPS, MSTEPS_NAME)
     unc = [r for r in rows if r["part"] == "unconstrained"]
     assert {r["case"] for r in unc} == {"unconstrained-early", "unconstrained-late"}
     for r in unc:
@@ -29,6 +50,8 @@ def test_quick_solvers_study(tmp_path: Path) -> None:
             assert r["max_pos_diff"] < 1e-6, r
             assert abs(r["objective_gap"]) < 1e-9, r
             assert r["iterations"] > 0 and r["time_s"] > 0
+        if r["backend"] == "cvxpy/GLOP":
+            assert r["status"] == "n/a", r
         # Every row has a status; a failed or n/a one says why and has no measurement.
         assert r["status"] in ("optimal", "inaccurate", "failed", "infeasible", "n/a")
         if r["status"] in ("failed", "n/a"):
@@ -42,6 +65,7 @@ def test_quick_solvers_study(tmp_path: Path) -> None:
         assert ref["status"] == "optimal" and ref["max_pos_diff"] == 0.0
         clar = by[(case, "clarabel")]
         assert clar["status"] == "optimal" and clar["max_violation"] < 1e-6
+        assert clar["conic"] is True and by[(case, "clarabel (polygons)")]["conic"] is False
         assert abs(clar["objective_gap"]) < 1e-8
         # OSQP solves the polygonal problem: compared with its exact solve it is close; its gap to the
         # conic reference is never negative beyond tolerance (an inner polygon cannot do better).
@@ -49,12 +73,14 @@ def test_quick_solvers_study(tmp_path: Path) -> None:
         assert osqp["status"] == "optimal" and osqp["conic"] is False
         assert osqp["max_pos_diff_same"] < 1e-2
         assert osqp["objective_gap"] > -1e-6
+        assert by[(case, "cvxpy/CLARABEL (tight)")]["status"] == "optimal"
 
     plans = read_rows(tmp_path / "solvers_plans.jsonl", PLANS.schema, PLANS.name)
     kinds = {r["backend"]: r for r in plans}
     assert kinds["kalman"]["status"] == "optimal" and kinds["kalman"]["max_pos_diff"] == 0.0
     assert kinds["clarabel"]["status"] == "optimal" and kinds["clarabel"]["max_pos_diff"] < 1e-4
     assert kinds["osqp"]["iterations_done"] == 10
+    assert kinds["cvxpy/GLOP"]["status"] == "n/a" and kinds["cvxpy/GLOP"]["failed_at"] == 1
 
     summary = json.loads((tmp_path / "solvers.json").read_text())
     assert {s["backend"] for s in summary["plans"]} >= {"kalman", "clarabel", "osqp"}
@@ -66,3 +92,50 @@ def test_quick_solvers_study(tmp_path: Path) -> None:
     (tmp_path / "solvers.md").unlink()
     assert main(["study", "solvers", "--out", str(tmp_path), "--tables-only", "--quiet"]) == 0
     assert (tmp_path / "solvers.md").read_text() == text
+
+
+def test_iterate_is_the_planners_run() -> None:
+    # The M-steps measured are those of the planner's own run: the paths before iteration K and
+    # K + 1 are the plans of K - 1 and K iterations, bit for bit.
+    sc = study_scenario("A", 0, horizon=30)
+    it = make_iterate(sc, 3)
+    assert (it.prev.iteration, it.cur.iteration) == (3, 4)
+    for step, done in ((it.prev, 2), (it.cur, 3)):
+        plan = plan_pmht(sc, PMHTConfig(solver="kalman", max_iter=done))
+        np.testing.assert_array_equal(step.states, plan.states)
+        assert step.r == PMHTConfig().anneal.values(sc.r, 10)[done]
+    data = it.cur.data(sc)
+    assert data.ctx is None and data.W.shape == (sc.horizon, sc.n_platforms)
+
+
+@pytest.mark.parametrize(
+    ("status", "expected"),
+    [
+        (solvers.Status.OPTIMAL, STATUS_OK),
+        (solvers.Status.OPTIMAL_INACCURATE, STATUS_INACCURATE),
+        (solvers.Status.PRIMAL_INFEASIBLE, STATUS_INFEASIBLE),
+        (solvers.Status.DUAL_INFEASIBLE, STATUS_INFEASIBLE),
+        (solvers.Status.MAX_ITER, STATUS_FAILED),
+        (solvers.Status.NUMERICAL_ERROR, STATUS_FAILED),
+    ],
+)
+def test_statuses_are_classified_by_type(status: solvers.Status, expected: str) -> None:
+    assert classify(status) == expected
+
+
+def test_failures_are_classified_by_type_and_capability() -> None:
+    err = SolverError("failed", backend="x", status="whatever the backend says")
+    assert error_status(err, "clarabel")[:2] == (STATUS_FAILED, "whatever the backend says")
+    assert error_status(InfeasibleError("no", status="Infeasible"), "clarabel")[0] == STATUS_INFEASIBLE
+    assert error_status(UnknownSolverError("solver: no such"), "cvxpy/NOPE")[0] == STATUS_NA
+    # Kalman takes no constraints; an LP-only cvxpy solver takes no quadratic objective; a QP-only
+    # one takes no cones.
+    assert error_status(err, "kalman", frozenset({"soc"}))[0] == STATUS_NA
+    cp = pytest.importorskip("cvxpy")
+    installed = set(cp.installed_solvers())
+    if "GLOP" in installed:
+        assert error_status(err, "cvxpy/GLOP")[0] == STATUS_NA
+    if "OSQP" in installed:
+        assert cvxpy_takes("OSQP", frozenset({"linear"})) and not cvxpy_takes("OSQP", frozenset({"soc"}))
+    assert cvxpy_takes("CLARABEL", frozenset({"linear", "soc"}))
+    assert not cvxpy_takes("NO_SUCH_SOLVER", frozenset())
