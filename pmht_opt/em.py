@@ -176,9 +176,21 @@ class EMRun:
 
     # ------------------------------------------------------------------ the loop
 
-    def _estep(self, states: np.ndarray, r: float) -> tuple[EStepResult, float]:
+    def _estep(
+        self, states: np.ndarray, r: float, noise: np.ndarray | None = None
+    ) -> tuple[EStepResult, float]:
+        """The E-step of ``states`` at ``r`` and the EM objective there.
+
+        The prior term ``log P(X) = -1/2 sum ||u||^2`` comes from the M-step's process noise ``noise``
+        when the backend has it: recomputed from the states it would be a difference of nearly equal
+        numbers, which loses every digit when ``q dt^5`` is tiny against the positions.
+        """
         es = estep(self.scenario.locales, states[:, 1:, POS], self.log_tau, self.log_k, r, gate=self.gate)
-        return es, self.scenario.model.log_prior(states) + es.log_likelihood
+        if noise is None:
+            log_prior = self.scenario.model.log_prior(states)
+        else:
+            log_prior = float(-0.5 * np.sum(noise * noise))
+        return es, log_prior + es.log_likelihood
 
     def _notify(self, fn: Callable[[EMRun, Any], None] | None, value: Any) -> None:
         if fn is not None:
@@ -210,7 +222,7 @@ class EMRun:
         self._notify(self.callbacks.after_mstep, out)
         self.states = out.states
         t0 = time.perf_counter()
-        es, objective = self._estep(self.states, r)
+        es, objective = self._estep(self.states, r, out.noise)
         if it < schedule.max_iter and schedule.r_at(it + 1) != r:
             # The objective is recorded at this iteration's r; the next iteration weighs with its own.
             es, _ = self._estep(self.states, schedule.r_at(it + 1))

@@ -12,6 +12,7 @@ This backend is for generality and cross-checks, not speed.
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar
 
@@ -103,7 +104,10 @@ def solve_to_solution(
     iterations = 0
     x: np.ndarray | None = None
     try:
-        problem.solve(solver=solver, **options)
+        with warnings.catch_warnings():
+            # cvxpy warns of inaccurate answers; the status says so, and is judged by the caller.
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=solver, **options)
     except cp.error.SolverError as err:
         raw, status = f"solver_error: {err}", Status.NUMERICAL_ERROR
     except TypeError as err:
@@ -161,7 +165,8 @@ class CvxpySession(QPSession):
         if extra is not None and not callable(extra):
             raise SettingsError(f"cvxpy: extra must be a callable x -> (constraints, cost), got {extra!r}.")
         self._extra: ExtraTerms | None = extra
-        if self.problem.has_soc:
+        if self.problem.has_soc or extra is not None:
+            # Cones (ours, or any the extra terms bring) compile far faster without parameters.
             opts.setdefault("ignore_dpp", True)
         self._options = opts
         self._build()

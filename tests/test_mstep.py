@@ -111,7 +111,7 @@ def test_fallback_settings_give_way_to_the_callers(scenario_a: po.Scenario) -> N
     ("backend", "fast", "chain"),
     [
         ("osqp", {"max_iter": 20}, ({"max_iter": 30}, {"max_iter": 50_000})),
-        ("clarabel", {"max_iter": 0}, ({"max_iter": 1}, {"max_iter": 200})),
+        ("clarabel", {"max_iter": 0}, ({"max_iter": 0, "equilibrate_enable": True}, {"max_iter": 200})),
     ],
 )
 def test_failed_solves_go_through_the_fallback_chain_in_order(

@@ -49,7 +49,7 @@ def test_quick_solvers_study(tmp_path: Path) -> None:
             assert r["status"] == "optimal", r
             assert r["max_pos_diff"] < 1e-6, r
             assert abs(r["objective_gap"]) < 1e-9, r
-            assert r["iterations"] > 0 and r["time_s"] > 0
+            assert r["iterations"] >= 0 and r["time_s"] > 0  # an equality QP may need no IPM step
         if r["backend"] == "cvxpy/GLOP":
             assert r["status"] == "n/a", r
         # Every row has a status; a failed or n/a one says why and has no measurement.

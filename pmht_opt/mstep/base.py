@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
 import solvers
 from pmht_opt.constraints.base import Constraint, ConstraintContext
 from pmht_opt.scenario import Scenario
+
+if TYPE_CHECKING:
+    from pmht_opt.mstep.banded import BandedMStep
 
 
 @dataclass
@@ -53,7 +56,10 @@ class MStepOutput:
 
     ``status`` is the library's status of the least successful platform solve (the backend's own
     words in ``raw_status``); ``fallbacks`` counts the platforms whose solve needed a retry with other
-    settings.
+    settings; ``constrained`` lists the platforms that had constraint rows. ``noise`` is the whitened
+    process noise ``(M, T, 6)`` of the answer where the backend
+    has it (its own variables, or multipliers): the prior term ``1/2 sum ||u||^2`` of the EM objective
+    is then taken from it rather than from differences of nearly equal states.
     """
 
     states: np.ndarray
@@ -61,6 +67,8 @@ class MStepOutput:
     raw_status: str = "optimal"
     iterations: int = 0
     fallbacks: int = 0
+    noise: np.ndarray | None = None
+    constrained: tuple[int, ...] = ()
     info: dict[str, object] = field(default_factory=dict)
 
 
@@ -97,10 +105,32 @@ class MStep(abc.ABC):
         self.T = scenario.horizon
         self.M = scenario.n_platforms
         self.x0 = scenario.initial_states
+        self._reference: BandedMStep | None = None
+
+    def solve(self, data: MStepData) -> MStepOutput:
+        """Minimise ``J`` for these weights, subject to the constraints active in ``data``.
+
+        The answer is checked before it is returned (:func:`~pmht_opt.mstep.check.check_answer`): a
+        backend that reports success on a wrong answer raises ``SolverError``.
+        """
+        from pmht_opt.mstep.check import check_answer
+
+        out = self._solve(data)
+        check_answer(self, data, out)
+        return out
 
     @abc.abstractmethod
-    def solve(self, data: MStepData) -> MStepOutput:
-        """Minimise ``J`` for these weights, subject to the constraints active in ``data``."""
+    def _solve(self, data: MStepData) -> MStepOutput:
+        """The backend's own solve."""
+
+    def reference(self) -> BandedMStep:
+        """The exact unconstrained smoother of this scenario, which answers are checked against."""
+        if getattr(self, "_reference", None) is None:
+            from pmht_opt.mstep.banded import BandedMStep
+
+            self._reference = BandedMStep(self.scenario)
+        assert self._reference is not None
+        return self._reference
 
     def close(self) -> None:  # noqa: B027 - most backends hold nothing to release
         """Release threads or solver workspaces held by this backend."""

@@ -1,4 +1,13 @@
-"""The M-step written in cvxpy, for any installed cvxpy solver and for native cvxpy constraints."""
+"""The M-step with native cvxpy constraints: all platforms in one cvxpy problem.
+
+Without native cvxpy constraints the ``cvxpy`` backend is the platform QPs of
+:class:`~pmht_opt.mstep.qp.QPMStep` handed to :class:`solvers.cvxpy_.CvxpySession`: the same
+formulation and the same translation into cvxpy as every other use of cvxpy in this library.
+A :class:`~pmht_opt.constraints.CvxpyConstraint` may couple platforms, so with one the M-step is the
+QP of all platforms stacked (block-diagonal), the constraint blocks assembled exactly as for the QP
+backends, and the user's constraints added on views of the stacked variable as the states they
+describe.
+"""
 
 from __future__ import annotations
 
@@ -10,31 +19,22 @@ import scipy.sparse as sp
 import solvers
 from pmht_opt.constraints.base import Constraint
 from pmht_opt.constraints.user import CvxpyConstraint, CvxpyVariables
-from pmht_opt.exceptions import InfeasibleError, UnknownSolverError
+from pmht_opt.exceptions import ConfigError, InfeasibleError, SolverError, UnknownSolverError
 from pmht_opt.model import PX, PY, STATE_DIM
 from pmht_opt.mstep.base import MStep, MStepData, MStepOutput
+from pmht_opt.mstep.formulation import QPLayout, dynamics_rows
 from pmht_opt.mstep.qp import check_solution
-from pmht_opt.mstep.rows import PlatformRows, RowBuilder, assemble, soften_cvxpy
-from pmht_opt.mstep.tuning import CVXPY_CLARABEL_RETRIES
+from pmht_opt.mstep.rows import RowBuilder, assemble, soften_cvxpy
 from pmht_opt.scenario import Scenario
 
 
-class CvxpyMStep(MStep):
-    """The M-step written in cvxpy; any installed cvxpy solver can be chosen.
+class JointCvxpyMStep(MStep):
+    """Every platform's M-step QP in one cvxpy problem, with the native cvxpy constraints on top.
 
     ``settings`` may hold ``cvxpy_solver`` (default ``"CLARABEL"``); the rest goes to
-    ``cvxpy.Problem.solve``. The variables are exposed as :attr:`states` (one ``(T, 6)`` cvxpy variable
-    per platform, rows ``t = 1..T``) and :attr:`noise`.
-
-    Without constraints the weights are parameters and the problem is compiled once (DPP). With
-    constraints it is compiled again at every solve, the weights and the iteration's constraint rows
-    entering as constants (``ignore_dpp``): cvxpy's parametrised compilation reorders every
-    second-order cone through a tensor with one column per (variable, parameter) pair, which costs
-    minutes and gigabytes at the paper's sizes, where a plain compilation takes a fraction of a
-    second. Constraint blocks are assembled into rows exactly as for the QP backends
-    (:func:`~pmht_opt.mstep.rows.assemble`, one soft rule) and translated into cvxpy by
-    :func:`solvers.cvxpy_.cone_constraints`. :class:`~pmht_opt.constraints.CvxpyConstraint` s are built
-    once with the variables.
+    ``cvxpy.Problem.solve``. The problem is compiled again at every solve (the iteration's constraint
+    rows enter as constants); each :class:`~pmht_opt.constraints.CvxpyConstraint` function is called
+    at every compilation on the same kind of variables and must not depend on the iterate.
     """
 
     name: ClassVar[str] = "cvxpy"
@@ -47,92 +47,84 @@ class CvxpyMStep(MStep):
         constraints: tuple[Constraint, ...] = (),
     ) -> None:
         super().__init__(scenario, settings, accept_inaccurate, constraints)
-        import cvxpy as cp
+        from solvers.cvxpy_ import CvxpySession, check_solver_name
 
-        from solvers.cvxpy_ import DEFAULT_SOLVER, check_solver_name
-
-        opts = dict(self.settings)
+        self.options = dict(self.settings)
         try:
-            self.cvxpy_solver = check_solver_name(str(opts.pop("cvxpy_solver", DEFAULT_SOLVER)))
+            check_solver_name(str(self.options.get("cvxpy_solver", "CLARABEL")))
         except solvers.UnknownSolverError as err:
             raise UnknownSolverError(str(err)) from err
-        #: Whether the problem is compiled once with the weights as parameters (no constraints).
-        self.dpp = not self.constraints
-        if not self.dpp:
-            opts.setdefault("ignore_dpp", True)
-        self.options = opts
-        self.retries = solvers.RetryChain()
-        if self.cvxpy_solver == "CLARABEL" and self.dpp:
-            self.retries = CVXPY_CLARABEL_RETRIES.without(opts)
+        self.session_class = CvxpySession
         self.rows = RowBuilder(self.constraints, conic=True)
-        M, T = self.M, self.T
-        F, L = self.model.F, self.model.L
-        self.states = [cp.Variable((T, STATE_DIM), name=f"x{m}") for m in range(M)]
-        self.noise = [cp.Variable((T, STATE_DIM), name=f"u{m}") for m in range(M)]
-        self._stacked = [cp.reshape(X, (T * STATE_DIM,), order="C") for X in self.states]
-        self._sqrt_w = cp.Parameter((T, M), nonneg=True, name="sqrt_w_over_r")
-        self._lin = cp.Parameter((T, 2 * M), name="wz_over_r")
-        cost = 0
-        rows: list[Any] = []
-        for m in range(M):
-            X, U = self.states[m], self.noise[m]
-            rows.append(X[0] == F @ self.x0[m] + L @ U[0])
-            rows.append(X[1:] == X[:-1] @ F.T + U[1:] @ L.T)
-            cost += 0.5 * cp.sum_squares(U)
-            cost += 0.5 * cp.sum_squares(cp.multiply(self._sqrt_w[:, m], X[:, PX]))
-            cost += 0.5 * cp.sum_squares(cp.multiply(self._sqrt_w[:, m], X[:, PY]))
-            cost -= self._lin[:, 2 * m] @ X[:, PX] + self._lin[:, 2 * m + 1] @ X[:, PY]
-        variables = CvxpyVariables.of(self.states, scenario.dt)
-        for con in self.constraints:
-            if isinstance(con, CvxpyConstraint):
-                items = con.build(variables)
-                if con.soft:
-                    items, penalty = soften_cvxpy(items, con.weight)
-                    cost += penalty
-                rows.extend(items)
-        self._base_cost = cost
-        self._base_constraints = rows
-        self.problem = cp.Problem(cp.Minimize(cost), rows)
+        self.layout = QPLayout(self.M, self.T)
+        self.A_dyn, self.b_dyn = dynamics_rows(self.model, self.layout, self.x0)
+        self.native = [c for c in self.constraints if isinstance(c, CvxpyConstraint)]
 
-    def _build(self, rows: dict[int, PlatformRows]) -> None:
-        """The problem with this iteration's constraint rows written in as constants."""
+    def _native(self, x: Any) -> tuple[list[Any], Any]:
+        """The user's constraints on views of ``x`` as per-platform ``(T, 6)`` states."""
         import cvxpy as cp
 
-        from solvers.cvxpy_ import cone_constraints
+        t_idx = np.arange(1, self.T + 1)[:, None]
+        states = [
+            cp.reshape(
+                x[self.layout.x(m, t_idx, np.arange(STATE_DIM)).ravel()], (self.T, STATE_DIM), order="C"
+            )
+            for m in range(self.M)
+        ]
+        variables = CvxpyVariables.of(states, self.scenario.dt)
+        out: list[Any] = []
+        cost: Any = 0
+        for con in self.native:
+            items = con.build(variables)
+            if con.soft:
+                items, penalty = soften_cvxpy(items, con.weight)
+                cost = cost + penalty
+            out += items
+        return out, cost
 
-        cost = self._base_cost
-        constraints: list[Any] = list(self._base_constraints)
-        n = self.T * STATE_DIM
-        for m, platform_rows in sorted(rows.items()):
-            extra = assemble(platform_rows.items, n, np.arange(n))
-            z: Any = self._stacked[m]
-            if extra.n_slack:
-                slack = cp.Variable(extra.n_slack)
-                z = cp.hstack([z, slack])
-                cost += extra.slack_cost @ slack
-            constraints += cone_constraints(extra.b - sp.csr_matrix(extra.A) @ z, extra.cones)
-        self.problem = cp.Problem(cp.Minimize(cost), constraints)
+    def _problem(self, data: MStepData) -> solvers.QPProblem:
+        lay, T = self.layout, self.T
+        t_idx = np.arange(1, T + 1)
+        n = lay.n
+        diag = np.zeros(n)
+        diag[lay.u(np.arange(self.M)[:, None, None], t_idx[None, :, None], np.arange(STATE_DIM))] = 1.0
+        q = np.zeros(n)
+        for m in range(self.M):
+            for c, comp in enumerate((PX, PY)):
+                idx = lay.x(m, t_idx, comp)
+                diag[idx] = data.W[:, m] / data.r
+                q[idx] = -data.WZ[:, m, c] / data.r
+        blocks = [self.A_dyn]
+        b = [self.b_dyn]
+        cones: list[solvers.Cone] = [solvers.Zero(self.A_dyn.shape[0])]
+        slack_cost = [np.zeros(0)]
+        n_slack = 0
+        for m, platform_rows in sorted(self.rows.rows(data.ctx, data.active).items()):
+            col_map = lay.x(m, t_idx[:, None], np.arange(STATE_DIM)).ravel()
+            extra = assemble(platform_rows.items, n + n_slack, col_map)
+            blocks.append(extra.A)
+            b.append(extra.b)
+            cones += extra.cones
+            slack_cost.append(extra.slack_cost)
+            n_slack += extra.n_slack
+        width = n + n_slack
+        A = sp.vstack(
+            [sp.csc_matrix(blk, shape=(blk.shape[0], width)) for blk in _widen(blocks, width)]
+        ).tocsc()
+        P = sp.diags(np.concatenate([diag, np.zeros(n_slack)])).tocsc()
+        return solvers.QPProblem(
+            P=P, q=np.concatenate([q, *slack_cost]), A=A, b=np.concatenate(b), cones=tuple(cones)
+        )
 
-    def solve(self, data: MStepData) -> MStepOutput:
-        from solvers.cvxpy_ import solve_to_solution
-
-        if not self.dpp:
-            self._build(self.rows.rows(data.ctx, data.active))
-        self._sqrt_w.value = np.sqrt(np.maximum(data.W, 0.0) / data.r)
-        self._lin.value = (data.WZ / data.r).reshape(self.T, 2 * self.M)
-        backend = f"cvxpy/{self.cvxpy_solver}"
-        iterations = [0]
-
-        def read() -> np.ndarray | None:
-            values = [X.value for X in self.states]
-            return None if any(v is None for v in values) else np.stack([np.asarray(v) for v in values])
-
-        def attempt(options: dict[str, Any]) -> solvers.QPSolution:
-            sol = solve_to_solution(self.problem, read, backend, self.cvxpy_solver, options)
-            iterations[0] += sol.iterations
-            return sol
-
-        sol, _ = solvers.retry_failed(attempt(self.options), self.options, self.retries, attempt)
+    def _solve(self, data: MStepData) -> MStepOutput:
+        problem = self._problem(data)
+        try:
+            session = self.session_class(problem, extra=self._native, **self.options)
+        except solvers.SettingsError as err:
+            raise ConfigError(f"solver_settings: {err}") from err
+        except solvers.QPError as err:
+            raise SolverError(f"cannot set up the M-step problem: {err}") from err
+        sol = session.solve()
         if sol.status in solvers.INFEASIBLE and self.constraints:
             names = sorted({c.name for c in self.constraints if not c.soft})
             raise InfeasibleError(
@@ -144,11 +136,24 @@ class CvxpyMStep(MStep):
             )
         check_solution(sol, self.accept_inaccurate)
         assert sol.x is not None
-        states = self._with_start(sol.x.reshape(self.M, self.T, STATE_DIM))
+        x = sol.x[: self.layout.n]
         return MStepOutput(
-            states=states,
+            states=self._with_start(self.layout.states(x)),
             status=sol.status,
             raw_status=sol.raw_status,
-            iterations=iterations[0],
-            fallbacks=int("fallback" in sol.info),
+            iterations=sol.iterations,
+            noise=self.layout.noise(x),
+            constrained=tuple(range(self.M)),  # native constraints may bind any platform
         )
+
+
+def _widen(blocks: list[sp.spmatrix], width: int) -> list[sp.csc_matrix]:
+    """Each block padded with empty columns up to ``width`` (the slacks of later platforms)."""
+    out = []
+    for blk in blocks:
+        blk = sp.csc_matrix(blk)
+        if blk.shape[1] < width:
+            indptr = np.concatenate([blk.indptr, np.full(width - blk.shape[1], blk.indptr[-1])])
+            blk = sp.csc_matrix((blk.data, blk.indices, indptr), shape=(blk.shape[0], width))
+        out.append(blk)
+    return out

@@ -50,6 +50,10 @@ class QPLayout:
         """``(M, T, 6)`` states from a solution vector."""
         return xvec.reshape(self.M, self.T, BLOCK)[:, :, :STATE_DIM]
 
+    def noise(self, xvec: np.ndarray) -> np.ndarray:
+        """``(M, T, 6)`` whitened process noise ``u`` from a solution vector."""
+        return xvec.reshape(self.M, self.T, BLOCK)[:, :, STATE_DIM:]
+
 
 def dynamics_rows(model: MotionModel, layout: QPLayout, x0: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:
     """Equality rows ``x_t - F x_{t-1} - L u_t = 0`` (``= F x_0`` at ``t = 1``) for every platform.

@@ -22,7 +22,7 @@ class KalmanMStep(MStep):
 
     name: ClassVar[str] = "kalman"
 
-    def solve(self, data: MStepData) -> MStepOutput:
+    def _solve(self, data: MStepData) -> MStepOutput:
         zt, W = data.synthetic()
         model = self.model
         x0 = np.stack([self.x0[:, 0:3], self.x0[:, 3:6]], axis=-1)  # (M, 3, 2)

@@ -48,8 +48,9 @@ class Settings:
 class PlatformQP:
     """The M-step of one platform: a :class:`HorizonQP` per horizon, the coasting tail propagated.
 
-    Parameters are those of :class:`HorizonQP`. :meth:`solve` returns the backend's answer and the
-    platform's states ``(T, 6)`` for ``t = 1..T`` (``None`` when the answer has no primal vector).
+    Parameters are those of :class:`HorizonQP`. :meth:`solve` returns the backend's answer, the
+    platform's states ``(T, 6)`` for ``t = 1..T`` and their whitened process noise ``(T, 6)`` (both
+    ``None`` when the answer has no primal vector).
     """
 
     #: Horizons whose QP (and backend session) is kept for later iterations.
@@ -98,7 +99,7 @@ class PlatformQP:
 
     def solve(
         self, W: np.ndarray, WZ: np.ndarray, r: float, rows: PlatformRows | None = None
-    ) -> tuple[solvers.QPSolution, np.ndarray | None]:
+    ) -> tuple[solvers.QPSolution, np.ndarray | None, np.ndarray | None]:
         """Solve for weights ``W (T,)``, weighted locale sums ``WZ (T, 2)`` and constraint rows."""
         T = self.horizon
         constrained = rows is not None and bool(rows.items)
@@ -106,12 +107,14 @@ class PlatformQP:
         qp = self.qp(n)
         sol = qp.solve(W[:n], WZ[:n], r, rows)
         if sol.x is None:
-            return sol, None
+            return sol, None, None
         head = qp.layout.states(sol.x[: qp.layout.n])[0]
+        noise = np.zeros((T, head.shape[1]))
+        noise[:n] = qp.layout.noise(sol.x[: qp.layout.n])[0]
         if n == T:
-            return sol, head
+            return sol, head, noise
         tail = self.model.propagate(head[-1], T - n)[1:]
-        return sol, np.concatenate([head, tail])
+        return sol, np.concatenate([head, tail]), noise
 
 
 class HorizonQP:

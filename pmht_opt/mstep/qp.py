@@ -15,7 +15,7 @@ from pmht_opt.mstep.base import MStep, MStepData, MStepOutput
 from pmht_opt.mstep.diagnosis import diagnose
 from pmht_opt.mstep.platform import PlatformQP
 from pmht_opt.mstep.rows import PlatformRows, RowBuilder
-from pmht_opt.mstep.tuning import CONSTRAINED_DEFAULTS, DEFAULTS, RETRIES
+from pmht_opt.mstep.tuning import CONSTRAINED_DEFAULTS, DEFAULTS, RETRIES, cvxpy_defaults, cvxpy_retries
 from pmht_opt.scenario import Scenario
 
 
@@ -39,7 +39,8 @@ def check_solution(sol: solvers.QPSolution, accept_inaccurate: bool, platform: i
 
 
 class QPMStep(MStep):
-    """The M-step QP of :mod:`pmht_opt.mstep.formulation` through a :mod:`solvers` session.
+    """The M-step QP of :mod:`pmht_opt.mstep.formulation` through a :mod:`solvers` session
+    (``clarabel``, ``osqp``, or ``cvxpy`` with any installed cvxpy solver).
 
     Without coupling constraints the QP separates by platform, so each platform is its own QP
     (:class:`~pmht_opt.mstep.platform.PlatformQP`), and the platforms are solved concurrently on
@@ -65,10 +66,23 @@ class QPMStep(MStep):
         except solvers.UnknownSolverError as err:
             raise UnknownSolverError(str(err)) from err
         self.rows = RowBuilder(self.constraints, conic=self.session_class.supports_soc)
-        self.options = {**DEFAULTS.get(solver, {}), **self.settings}
-        self.constrained_options = {**CONSTRAINED_DEFAULTS.get(solver, {}), **self.settings}
+        if solver == "cvxpy":  # tuned per cvxpy solver; cvxpy's compilation holds the GIL: one thread
+            from solvers.cvxpy_ import check_solver_name
+
+            try:
+                check_solver_name(str(self.settings.get("cvxpy_solver", "CLARABEL")))
+            except solvers.UnknownSolverError as err:
+                raise UnknownSolverError(f"solver_settings: {err}") from err
+            self.options = {**cvxpy_defaults(self.settings), **self.settings}
+            self.constrained_options = dict(self.settings)
+            retries = cvxpy_retries(self.settings)
+            threads = 1
+        else:
+            self.options = {**DEFAULTS.get(solver, {}), **self.settings}
+            self.constrained_options = {**CONSTRAINED_DEFAULTS.get(solver, {}), **self.settings}
+            retries = RETRIES.get(solver, solvers.NO_RETRY)
         # Sets touching a setting the caller chose are skipped: do not second-guess the caller.
-        retries = RETRIES.get(solver, solvers.NO_RETRY).without(self.settings)
+        retries = retries.without(self.settings)
         self.blocks = [self._platform(m, retries) for m in range(self.M)]
         self.threads = max(1, min(int(threads), self.M))
         self._pool: ThreadPoolExecutor | None = None
@@ -84,7 +98,7 @@ class QPMStep(MStep):
             retries,
         )
 
-    def solve(self, data: MStepData) -> MStepOutput:
+    def _solve(self, data: MStepData) -> MStepOutput:
         rows = self.rows.rows(data.ctx, data.active)
         # A platform with no weight and no constraint has the unique answer u = 0 (it coasts from its
         # start); first-order solvers struggle on this degenerate QP (its dual residual has no scale),
@@ -94,7 +108,7 @@ class QPMStep(MStep):
             idle[m] = False
         active = [int(m) for m in np.flatnonzero(~idle)]
 
-        def one(m: int) -> tuple[solvers.QPSolution, np.ndarray | None]:
+        def one(m: int) -> tuple[solvers.QPSolution, np.ndarray | None, np.ndarray | None]:
             return self.blocks[m].solve(data.W[:, m], data.WZ[:, m], data.r, rows.get(m))
 
         if self.threads > 1 and len(active) > 1:
@@ -104,20 +118,23 @@ class QPMStep(MStep):
         else:
             answers = [one(m) for m in active]
         body = np.empty((self.M, self.T, STATE_DIM))
+        noise = np.zeros((self.M, self.T, STATE_DIM))
         for m in np.flatnonzero(idle).tolist():
             body[m] = self.model.propagate(self.x0[m], self.T)[1:]
-        for m, (sol, states) in zip(active, answers, strict=True):
+        for m, (sol, states, u) in zip(active, answers, strict=True):
             platform_rows = rows.get(m)
             if sol.status in solvers.INFEASIBLE and platform_rows is not None and platform_rows.items:
                 raise self._diagnose(m, data, platform_rows, sol)
             check_solution(sol, self.accept_inaccurate, platform=m)
-            assert states is not None
-            body[m] = states
-        sols = [sol for sol, _ in answers]
+            assert states is not None and u is not None
+            body[m], noise[m] = states, u
+        sols = [sol for sol, _, _ in answers]
         out = MStepOutput(
             states=self._with_start(body),
             iterations=int(sum(s.iterations for s in sols)),
             fallbacks=sum("fallback" in s.info for s in sols),
+            noise=noise,
+            constrained=tuple(sorted(m for m, r in rows.items() if r.items)),
         )
         if sols:
             worst = max(sols, key=lambda s: (s.status is not solvers.Status.OPTIMAL, s.iterations))
@@ -127,7 +144,8 @@ class QPMStep(MStep):
     def _diagnose(
         self, m: int, data: MStepData, rows: PlatformRows, sol: solvers.QPSolution
     ) -> InfeasibleError:
-        return diagnose(self._platform(m), m, data.W[:, m], data.WZ[:, m], data.r, rows, sol)
+        probe = self._platform(m).qp(self.T)
+        return diagnose(probe, m, data.W[:, m], data.WZ[:, m], data.r, rows, sol)
 
     def close(self) -> None:
         if self._pool is not None:

@@ -46,8 +46,14 @@ def _derive() -> dict[str, Backend]:
         if name == "cvxpy":
             caps.add("cvxpy")  # the problem is a cvxpy problem: native cvxpy constraints join it
         out[name] = Backend(name, spec, frozenset(caps))
+    out["banded"] = Backend("banded", None, frozenset())
     out["kalman"] = Backend("kalman", None, frozenset())
     return out
+
+
+#: ``solver="auto"``: the exact banded smoother without constraints, else the first of these that can
+#: impose them all.
+AUTO_ORDER = ("clarabel", "cvxpy", "osqp")
 
 
 #: Every M-step backend: the QP backends of :mod:`solvers` and the Kalman smoother.
@@ -62,10 +68,12 @@ def available_backends() -> list[str]:
 def check_backend(solver: object) -> str:
     """The backend name ``solver`` in canonical form, or :class:`UnknownSolverError` naming the field.
 
-    Raises for names that are not backends and for backends whose package is not installed; the
-    message lists the available ones.
+    ``"auto"`` is accepted (see :func:`resolve`). Raises for names that are not backends and for
+    backends whose package is not installed; the message lists the available ones.
     """
     key = str(solver).lower()
+    if key == "auto":
+        return key
     backend = BACKENDS.get(key)
     if backend is None:
         raise UnknownSolverError("solver: " + solvers.unknown_solver_message(solver, available_backends()))
@@ -76,9 +84,24 @@ def check_backend(solver: object) -> str:
     return key
 
 
+def resolve(solver: str, constraints: Sequence[Constraint]) -> str:
+    """The backend ``solver`` names: ``"auto"`` is ``"banded"`` (exact, fastest) without constraints,
+    else the first of :data:`AUTO_ORDER` that is installed and can impose every constraint."""
+    if solver != "auto":
+        return solver
+    if not constraints:
+        return "banded"
+    for name in AUTO_ORDER:
+        backend = BACKENDS[name]
+        if backend.installed and all(backend.can_impose(c.needs) for c in constraints):
+            return name
+    names = ", ".join(c.name for c in constraints)
+    raise ConfigError(f"constraints: no installed backend can impose {names}.")
+
+
 def check_constraints(solver: str, constraints: Sequence[Constraint]) -> None:
     """:class:`ConfigError` for a constraint that backend ``solver`` cannot impose."""
-    backend = BACKENDS[solver]
+    backend = BACKENDS[resolve(solver, constraints)]
     for con in constraints:
         if not backend.can_impose(con.needs):
             able = [b.name for b in BACKENDS.values() if b.can_impose(con.needs)]
@@ -97,18 +120,22 @@ def make_mstep(
     constraints: tuple[Constraint, ...] = (),
 ) -> MStep:
     """Build the M-step backend ``solver`` for ``scenario``, checked against its constraints."""
-    key = check_backend(solver)
+    key = resolve(check_backend(solver), constraints)
     check_constraints(key, constraints)
+    if key in ("banded", "kalman") and settings:
+        raise ConfigError(f"solver_settings: the {key} backend takes none, got {sorted(settings)}.")
+    if key == "banded":
+        from pmht_opt.mstep.banded import BandedMStep
+
+        return BandedMStep(scenario, accept_inaccurate=accept_inaccurate)
     if key == "kalman":
         from pmht_opt.mstep.kalman import KalmanMStep
 
-        if settings:
-            raise ConfigError(f"solver_settings: the kalman backend takes none, got {sorted(settings)}.")
         return KalmanMStep(scenario, accept_inaccurate=accept_inaccurate)
-    if key == "cvxpy":
-        from pmht_opt.mstep.cvxpy_ import CvxpyMStep
+    if any("cvxpy" in con.needs for con in constraints):
+        from pmht_opt.mstep.cvxpy_ import JointCvxpyMStep
 
-        return CvxpyMStep(scenario, settings, accept_inaccurate, tuple(constraints))
+        return JointCvxpyMStep(scenario, settings, accept_inaccurate, tuple(constraints))
     from pmht_opt.mstep.qp import QPMStep
 
     return QPMStep(

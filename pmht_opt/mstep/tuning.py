@@ -38,7 +38,12 @@ DEFAULTS: dict[str, dict[str, Any]] = {
         "polishing": False,
         "check_termination": 10,
     },
-    "clarabel": {"iterative_refinement_enable": False},
+    "clarabel": {
+        "iterative_refinement_enable": True,
+        "tol_gap_abs": 1e-12,
+        "tol_gap_rel": 1e-12,
+        "tol_feas": 1e-12,
+    },
 }
 
 #: Options for platforms whose M-step has constraint rows.
@@ -52,7 +57,7 @@ CONSTRAINED_DEFAULTS: dict[str, dict[str, Any]] = {
         "check_dualgap": False,
         "check_termination": 25,
     },
-    "clarabel": DEFAULTS["clarabel"],
+    "clarabel": {"iterative_refinement_enable": False},
 }
 
 #: Settings tried in turn after a failed QP solve.
@@ -61,7 +66,25 @@ RETRIES: dict[str, RetryChain] = {
     "osqp": RetryChain(({"rho": 100.0, "adaptive_rho": False}, {"rho": 30.0, "adaptive_rho": False})),
 }
 
-#: Settings tried in turn after a failed unconstrained cvxpy solve with Clarabel inside.
-CVXPY_CLARABEL_RETRIES = RetryChain(
-    ({"static_regularization_constant": 1e-10}, {"equilibrate_enable": False})
-)
+#: Options of Clarabel inside cvxpy on unconstrained M-steps: the clarabel backend's tolerances (cvxpy
+#: passes them through). Constrained M-steps keep the cvxpy solver's own defaults.
+CVXPY_INNER_DEFAULTS: dict[str, dict[str, Any]] = {
+    "CLARABEL": {"tol_gap_abs": 1e-12, "tol_gap_rel": 1e-12, "tol_feas": 1e-12},
+}
+
+#: Settings tried in turn after a failed cvxpy solve, per cvxpy solver.
+CVXPY_INNER_RETRIES: dict[str, RetryChain] = {
+    "CLARABEL": RetryChain(({"static_regularization_constant": 1e-10}, {"equilibrate_enable": False})),
+}
+
+
+def cvxpy_defaults(settings: dict[str, Any]) -> dict[str, Any]:
+    """The default options of the cvxpy backend for the cvxpy solver ``settings`` asks for."""
+    inner = str(settings.get("cvxpy_solver", "CLARABEL")).upper()
+    return dict(CVXPY_INNER_DEFAULTS.get(inner, {}))
+
+
+def cvxpy_retries(settings: dict[str, Any]) -> RetryChain:
+    """The retries of the cvxpy backend for the cvxpy solver ``settings`` asks for."""
+    inner = str(settings.get("cvxpy_solver", "CLARABEL")).upper()
+    return CVXPY_INNER_RETRIES.get(inner, RetryChain())
