@@ -18,7 +18,12 @@ from pmht_opt.scenario import Scenario, paper_scenario
 
 
 def _add_planner_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--solver", default="clarabel", choices=sorted(BACKENDS), help="M-step backend")
+    p.add_argument(
+        "--solver",
+        default="auto",
+        choices=["auto", *sorted(BACKENDS)],
+        help="M-step backend (default auto: banded without constraints, clarabel with them)",
+    )
     p.add_argument("--iterations", type=int, default=100, help="maximum EM iterations (default 100)")
     p.add_argument("--tol", type=float, default=0.0, help="relative objective change to stop at (0: never)")
     p.add_argument(

@@ -25,7 +25,7 @@ from pmht_opt.estep import EStepResult, estep, gate_margin, safe_log
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.model import POS, STATE_DIM
 from pmht_opt.mstep.base import MStepData, MStepOutput
-from pmht_opt.mstep.registry import make_mstep
+from pmht_opt.mstep.registry import make_mstep, resolve
 from pmht_opt.planner import PMHTConfig
 from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario
@@ -157,6 +157,8 @@ class EMRun:
         self.gate = None if auto_off else gate_margin(cfg.estep_gate, T, M)
         self._started = time.perf_counter()
         threads = cfg.threads if cfg.threads is not None else min(M, os.cpu_count() or 1)
+        #: The backend that runs the M-steps (``"auto"`` resolved).
+        self.solver = resolve(cfg.solver, cfg.constraints)
         self.mstep = make_mstep(
             scenario, cfg.solver, cfg.solver_settings, cfg.accept_inaccurate, threads, tuple(cfg.constraints)
         )
@@ -307,7 +309,7 @@ class EMRun:
             history=self.history(),
             converged=self.converged,
             wall_time=time.perf_counter() - self._started,
-            solver=cfg.solver,
+            solver=self.solver,
             snapshots=dict(self.snapshots),
             constraints=tuple(cfg.constraints),
             reports=reports,

@@ -36,7 +36,9 @@ class PMHTConfig:
     Parameters
     ----------
     solver
-        M-step backend: ``"clarabel"`` (default), ``"osqp"``, ``"cvxpy"`` or ``"kalman"``.
+        M-step backend: ``"auto"`` (default: the exact ``"banded"`` smoother without constraints,
+        ``"clarabel"`` with them), ``"banded"``, ``"clarabel"``, ``"osqp"``, ``"cvxpy"`` or
+        ``"kalman"`` (:func:`~pmht_opt.available_backends`).
     max_iter
         Maximum number of EM iterations (the paper: 100).
     tol
@@ -93,7 +95,7 @@ class PMHTConfig:
         judged only once annealing is over and every constraint is imposed.
     """
 
-    solver: str = "clarabel"
+    solver: str = "auto"
     max_iter: int = 100
     tol: float = 0.0
     update_time_prior: bool = False
