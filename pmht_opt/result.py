@@ -11,14 +11,15 @@ import numpy as np
 
 import solvers
 from pmht_opt.constraints.base import Constraint, ConstraintReport
+from pmht_opt.constraints.params import positive_number
 from pmht_opt.estep import EStepSummary
-from pmht_opt.exceptions import ConfigError
 from pmht_opt.geometry import count_crossings, point_polyline_distance
 from pmht_opt.model import ACC, POS, VEL
 from pmht_opt.scenario import Scenario
 
-#: Default coverage radius: three standard deviations of the paper's penalty (sigma = 0.1).
-DEFAULT_RADIUS = 0.3
+
+#: Relative slack of the coverage test (see :meth:`PlanResult.coverage`).
+COVERAGE_RTOL = 1e-6
 
 
 def excursion(points: np.ndarray, bounds: tuple[float, float, float, float]) -> float:
@@ -144,21 +145,31 @@ class PlanResult:
 
     @cached_property
     def miss_distance(self) -> np.ndarray:
-        """``(N,)`` distance from each locale to the path of the platform it is assigned to."""
-        out = np.empty(self.scenario.n_locales)
+        """``(N,)`` distance from each locale to the nearest path, measured on the segments between
+        consecutive positions (docs/model.md section 11)."""
         pos = self.positions
-        for m in range(self.scenario.n_platforms):
-            mine = self.assignment == m
-            if np.any(mine):
-                out[mine] = point_polyline_distance(self.scenario.locales[mine], pos[m])
-        return out
+        return np.min(
+            [point_polyline_distance(self.scenario.locales, pos[m]) for m in range(pos.shape[0])], axis=0
+        )
 
-    def coverage(self, radius: float = DEFAULT_RADIUS) -> float:
-        """Fraction of locales within ``radius`` of their platform's path (default 3 sigma = 0.3)."""
-        radius = float(radius)
-        if not np.isfinite(radius) or radius < 0:
-            raise ConfigError(f"radius: expected a finite non-negative number, got {radius}.")
-        return float(np.mean(self.miss_distance <= radius))
+    def _radius(self, radius: object) -> float:
+        if radius is None:
+            return self.scenario.coverage_radius
+        return positive_number("radius", radius, allow_zero=True)
+
+    def coverage(self, radius: float | None = None) -> float:
+        """Fraction of locales within ``radius`` of some platform's path (docs/model.md section 11).
+
+        ``radius`` defaults to the scenario's :attr:`~pmht_opt.Scenario.coverage_radius`. A locale
+        counts up to :data:`COVERAGE_RTOL` of the radius beyond it: a plan made to pass at exactly the
+        radius meets it to its solver's tolerance.
+        """
+        return 1.0 - self.missed_locales(radius).size / self.scenario.n_locales
+
+    def missed_locales(self, radius: float | None = None) -> np.ndarray:
+        """Indices of the locales further than ``radius`` (default: the scenario's) from every path."""
+        rho = self._radius(radius)
+        return np.flatnonzero(self.miss_distance > rho * (1.0 + COVERAGE_RTOL))
 
     @cached_property
     def locales_per_platform(self) -> np.ndarray:
@@ -197,12 +208,14 @@ class PlanResult:
         """Largest violation of any constraint (0 without constraints or when all hold)."""
         return max((r.max_violation for r in self.constraint_reports()), default=0.0)
 
-    def metrics(self, radius: float = DEFAULT_RADIUS) -> dict[str, Any]:
+    def metrics(self, radius: float | None = None) -> dict[str, Any]:
         """The headline metrics as plain Python values (for tables and JSON)."""
+        rho = self._radius(radius)
         return {
             "total_distance": self.total_distance,
-            "coverage": self.coverage(radius),
-            "coverage_radius": float(radius),
+            "coverage": self.coverage(rho),
+            "coverage_radius": rho,
+            "missed_locales": self.missed_locales(rho).tolist(),
             "mean_miss_distance": float(np.mean(self.miss_distance)),
             "max_miss_distance": float(np.max(self.miss_distance)),
             "crossings": int(self.crossings),
@@ -246,5 +259,5 @@ class PlanResult:
         name = f"{self.scenario.name}: " if self.scenario.name else ""
         return (
             f"{name}PMHT ({self.solver}), distance {self.total_distance:.1f}, "
-            f"coverage@{DEFAULT_RADIUS} {self.coverage():.0%}"
+            f"coverage@{self.scenario.coverage_radius:g} {self.coverage():.0%}"
         )

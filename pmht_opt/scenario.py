@@ -72,6 +72,11 @@ class Scenario:
         bounding box of the locales.
     name
         A label for reports.
+    coverage_radius
+        The sensor footprint ``rho``: a locale counts as covered when some platform's path passes
+        within ``rho`` of it (docs/model.md section 11). Used by the coverage metrics, guaranteed visits
+        and the coverage planner unless they are given their own radius. Default 0.3, three standard
+        deviations of the paper's penalty (``r = 0.01``).
     """
 
     locales: np.ndarray
@@ -82,6 +87,7 @@ class Scenario:
     r: float = 1e-2
     bounds: Bounds | None = None
     name: str = ""
+    coverage_radius: float = 0.3
     initial_states: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -103,7 +109,7 @@ class Scenario:
         self.horizon = int(self.horizon)
         if self.horizon < 2:
             raise ScenarioError(f"horizon must be >= 2 time steps, got {self.horizon}.")
-        for key in ("dt", "q", "r"):
+        for key in ("dt", "q", "r", "coverage_radius"):
             value = _number(key, getattr(self, key))
             if value <= 0:
                 raise ScenarioError(f"{key} must be > 0, got {value}.")
@@ -158,6 +164,7 @@ class Scenario:
             "q": self.q,
             "r": self.r,
             "bounds": list(self.bounds) if self.bounds is not None else None,
+            "coverage_radius": self.coverage_radius,
             "locales": self.locales.tolist(),
             "starts": self.starts.tolist(),
         }
@@ -167,7 +174,7 @@ class Scenario:
         """Build a scenario from :meth:`to_dict`'s form; unknown or missing keys raise ScenarioError."""
         if not isinstance(data, dict):
             raise ScenarioError(f"A scenario must be a table/object, got {type(data).__name__}.")
-        allowed = {"name", "horizon", "dt", "q", "r", "bounds", "locales", "starts"}
+        allowed = {"name", "horizon", "dt", "q", "r", "bounds", "coverage_radius", "locales", "starts"}
         unknown = sorted(set(data) - allowed)
         if unknown:
             raise ScenarioError(f"Unknown scenario field(s): {', '.join(unknown)}.")

@@ -77,17 +77,13 @@ class TourVisits(VisitAll):
         self,
         platform: np.ndarray,
         windows: np.ndarray,
-        radius: float = 0.1,
+        radius: float | None = None,
         sides: int = DEFAULT_SIDES,
         **kwargs: Any,
     ) -> None:
         super().__init__(radius, warmup=0, sides=sides, **kwargs)
         self.platform = np.asarray(platform, dtype=int)
         self.windows = np.asarray(windows, dtype=int)
-
-    @property
-    def name(self) -> str:
-        return f"TourVisits({self.radius:g})"
 
     def visits(self, ctx: ConstraintContext) -> tuple[np.ndarray, np.ndarray]:
         if ctx.estep is None:
@@ -139,7 +135,7 @@ def plan_smoothed(
     scenario: Scenario,
     tour: TourResult | Sequence[Any],
     config: PMHTConfig | None = None,
-    visit_radius: float = 0.1,
+    visit_radius: float | None = None,
     *,
     split: str = "equal",
     sides: int = DEFAULT_SIDES,
@@ -159,7 +155,8 @@ def plan_smoothed(
         :class:`~pmht_opt.constraints.SpeedLimit`). Both prior updates and annealing are switched
         off: the tour fixes the assignment and the order, which is what they exist to find.
     visit_radius
-        Each locale is passed within this distance, at a step inside its sub-batch.
+        Each locale is passed within this distance, at a step inside its sub-batch; default: the
+        scenario's :attr:`~pmht_opt.Scenario.coverage_radius`.
     split
         How each platform's horizon is cut into sub-batches: ``"equal"`` (the paper) or
         ``"distance"`` (proportional to the legs of the tour).
@@ -184,6 +181,8 @@ def plan_smoothed(
     cfg = config if config is not None else PMHTConfig()
     if not isinstance(cfg, PMHTConfig):
         raise ConfigError(f"config must be a PMHTConfig, got {type(cfg).__name__}.")
+    if visit_radius is None:
+        visit_radius = scenario.coverage_radius
     visit_radius = positive_number("visit_radius", visit_radius)
     windows = sub_batches(scenario, routes, split)
     N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon

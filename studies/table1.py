@@ -43,12 +43,15 @@ import numpy as np
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.ordering import TourResult
 from pmht_opt.planner import PMHTConfig, plan_pmht
-from pmht_opt.result import DEFAULT_RADIUS, PlanResult, excursion
+from pmht_opt.result import PlanResult, excursion
 from pmht_opt.scenario import Scenario, paper_scenario
 from studies.options import RunOptions, positive_int
 from studies.report import EXCURSION_LIMIT, frame, summarise, write_summary
 from studies.store import Schema
 from studies.trials import Check, TrialTable, run_trials
+
+#: The coverage radius the table reports (the scenarios' default sensor footprint).
+DEFAULT_RADIUS = 0.3
 
 METHODS: dict[str, str] = {
     "ga": "GA-TSP",

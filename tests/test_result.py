@@ -34,16 +34,34 @@ def test_distance_coverage_miss_and_crossings() -> None:
     res = hand_made(np.stack([p0, p1]), locales, np.array([0, 0, 0]))
     assert res.total_distance == pytest.approx(4 * np.sqrt(2) + np.hypot(4, 3.5))
     np.testing.assert_allclose(res.distance_per_platform, [4 * np.sqrt(2), np.hypot(4, 3.5)])
-    np.testing.assert_allclose(res.miss_distance, [0.2, 2.0, 1.0] / np.sqrt(2), atol=1e-12)
-    assert res.coverage(0.3) == pytest.approx(1 / 3)
-    assert res.coverage(1.0) == pytest.approx(2 / 3)
-    assert res.coverage(1.5) == 1.0
+    # Coverage is to the nearest path (any platform), measured on the segments: path 1 lies along
+    # 3.5 x + 4 y = 16, at |3.5 x + 4 y - 16| / sqrt(3.5^2 + 4^2) from a point.
+    to_p1 = np.abs(3.5 * locales[:, 0] + 4 * locales[:, 1] - 16) / np.hypot(3.5, 4)
+    to_p0 = np.abs(locales[:, 0] - locales[:, 1]) / np.sqrt(2)
+    np.testing.assert_allclose(res.miss_distance, np.minimum(to_p0, to_p1), atol=1e-12)
+    assert res.coverage(0.3) == pytest.approx(2 / 3)
+    np.testing.assert_array_equal(res.missed_locales(0.3), [2])
+    assert res.coverage(1.0) == 1.0
+    assert res.coverage() == res.coverage(0.3)  # the scenario's default radius
+    assert res.metrics()["missed_locales"] == [2]
     assert res.crossings == 1
     np.testing.assert_array_equal(res.locales_per_platform, [3, 0])
     assert res.max_speed == pytest.approx(np.sqrt(2))
     assert res.max_excursion() == 0.0
     with pytest.raises(po.ConfigError, match="radius"):
         res.coverage(-1)
+
+
+def test_coverage_counts_the_segments_not_only_the_samples() -> None:
+    # Two hops of length 4; the locale is 0.1 from the middle of the first, 2 from every sample.
+    path = np.array([[[0.0, 0.0], [4.0, 0.0], [8.0, 0.0]]])
+    res = hand_made(path, np.array([[2.0, 0.1]]), np.array([0]))
+    assert res.miss_distance[0] == pytest.approx(0.1)
+    assert res.coverage(0.15) == 1.0 and res.coverage(0.05) == 0.0
+    wide = po.Scenario(locales=[[2.0, 1.0]], starts=[[0.0, 0.0]], horizon=2, coverage_radius=1.5)
+    assert wide.coverage_radius == 1.5
+    with pytest.raises(po.ScenarioError, match="coverage_radius"):
+        po.Scenario(locales=[[2.0, 1.0]], starts=[[0.0, 0.0]], horizon=2, coverage_radius=0.0)
 
 
 def test_excursion_outside_the_area() -> None:

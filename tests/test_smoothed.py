@@ -63,8 +63,10 @@ def test_sub_batches_partition_each_horizon_in_order() -> None:
 def test_smoothed_accepts_plain_routes_and_rejects_bad_ones() -> None:
     sc = paper_scenario("A", seed=3, horizon=120)
     routes = [list(range(k, 100, 4)) for k in range(4)]
-    res = plan_smoothed(sc, routes, PMHTConfig(max_iter=2))
-    assert res.coverage(0.1 + 1e-6) == 1.0
+    res = plan_smoothed(sc, routes, PMHTConfig(max_iter=2))  # visit radius: the coverage radius
+    assert res.coverage(sc.coverage_radius + 1e-6) == 1.0 and res.coverage() == 1.0
+    tight = plan_smoothed(sc, routes, PMHTConfig(max_iter=2), visit_radius=0.1)
+    assert tight.coverage(0.1 + 1e-6) == 1.0
     with pytest.raises(ConfigError):
         plan_smoothed(sc, [list(range(50)), list(range(50, 99)), [], []])  # locale 99 missing
     with pytest.raises(ConfigError):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -11,6 +11,9 @@ from pmht_opt.constraints.blocks import DEFAULT_SIDES, Block, disc_block
 from pmht_opt.constraints.params import check_sides, positive_number
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.model import POS, PX, PY
+
+if TYPE_CHECKING:
+    from pmht_opt.scenario import Scenario
 
 
 def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np.ndarray]:
@@ -87,7 +90,8 @@ class VisitAll(Constraint):
     Parameters
     ----------
     radius
-        Visit radius.
+        Visit radius; ``None`` (default) takes the scenario's
+        :attr:`~pmht_opt.Scenario.coverage_radius`, its sensor footprint.
     warmup
         EM iterations run without the constraint first, so the MAP times come from paths that already
         pass near the locales (from the standing start every time is equally likely). They are counted
@@ -105,10 +109,10 @@ class VisitAll(Constraint):
     needs = frozenset({"soc"})
 
     def __init__(
-        self, radius: float = 0.1, warmup: int = 10, sides: int = DEFAULT_SIDES, **kwargs: Any
+        self, radius: float | None = None, warmup: int = 10, sides: int = DEFAULT_SIDES, **kwargs: Any
     ) -> None:
         super().__init__(**kwargs)
-        self.radius = positive_number("VisitAll.radius", radius)
+        self.radius = None if radius is None else positive_number(f"{type(self).__name__}.radius", radius)
         if isinstance(warmup, bool) or not isinstance(warmup, (int, np.integer)) or warmup < 0:
             raise ConfigError(f"VisitAll.warmup: expected an integer >= 0, got {warmup!r}.")
         self.warmup: int | None = int(warmup)
@@ -116,11 +120,16 @@ class VisitAll(Constraint):
 
     @property
     def name(self) -> str:
-        return f"VisitAll({self.radius:g})"
+        label = "" if self.radius is None else f"{self.radius:g}"
+        return f"{type(self).__name__}({label})"
+
+    def radius_for(self, scenario: Scenario) -> float:
+        """The visit radius on ``scenario``: the given one, or the scenario's coverage radius."""
+        return scenario.coverage_radius if self.radius is None else self.radius
 
     def visits(self, ctx: ConstraintContext) -> tuple[np.ndarray, np.ndarray]:
         """``(platform (N,), time (N,))`` of the visit each locale must make in this iteration."""
-        return choose_visits(ctx, self.radius)
+        return choose_visits(ctx, self.radius_for(ctx.scenario))
 
     def blocks(self, ctx: ConstraintContext) -> list[Block]:
         platform, time = self.visits(ctx)
@@ -135,7 +144,7 @@ class VisitAll(Constraint):
                         time[mine],
                         (PX, PY),
                         ctx.scenario.locales[mine],
-                        np.full(mine.size, self.radius),
+                        np.full(mine.size, self.radius_for(ctx.scenario)),
                         self.sides,
                         labels=[f"locale {n}" for n in mine.tolist()],
                     )
@@ -148,7 +157,7 @@ class VisitAll(Constraint):
         dist = np.hypot(*(states[platform, time][:, POS] - ctx.scenario.locales).T)
         report.details.update(
             {
-                "visits_met": int(np.sum(dist <= self.radius + 1e-6)),
+                "visits_met": int(np.sum(dist <= self.radius_for(ctx.scenario) + 1e-6)),
                 "max_visit_distance": float(np.max(dist)) if dist.size else 0.0,
             }
         )
