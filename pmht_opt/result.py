@@ -17,7 +17,6 @@ from pmht_opt.geometry import count_crossings, point_polyline_distance
 from pmht_opt.model import ACC, POS, VEL
 from pmht_opt.scenario import Scenario
 
-
 #: Relative slack of the coverage test (see :meth:`PlanResult.coverage`).
 COVERAGE_RTOL = 1e-6
 
@@ -119,6 +118,15 @@ class PlanResult:
     reports: tuple[ConstraintReport, ...] = ()
     estep: EStepSummary | None = None
     anneal: str = "none"
+
+    def __repr__(self) -> str:
+        sc = self.scenario
+        label = f"{sc.name!r}, " if sc.name else ""
+        return (
+            f"PlanResult({label}{sc.n_platforms} platforms, {sc.n_locales} locales, T={sc.horizon}, "
+            f"solver={self.solver!r}, iterations={self.n_iterations}, distance={self.total_distance:.4g}, "
+            f"coverage@{sc.coverage_radius:g}={self.coverage():.0%}, max violation={self.max_violation:.1e})"
+        )
 
     @property
     def positions(self) -> np.ndarray:

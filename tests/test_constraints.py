@@ -347,3 +347,13 @@ def test_soft_inequalities_cost_nothing_when_met() -> None:
     far = CircleObstacle((30.0, 30.0), 1.0, soft=True, weight=1e3)
     soft = plan_pmht(sc, PMHTConfig(max_iter=3, anneal=None, constraints=[far]))
     assert np.max(np.abs(soft.positions - free.positions)) < 1e-6
+
+
+def test_return_to_base_ends_at_the_start_at_rest() -> None:
+    sc = _small()
+    res = plan_pmht(sc, PMHTConfig(max_iter=3, constraints=[Terminal.return_to_base()]))
+    np.testing.assert_allclose(res.positions[:, -1], sc.start_positions, atol=1e-6)
+    np.testing.assert_allclose(res.states[:, -1][:, [1, 2, 4, 5]], 0.0, atol=1e-6)
+    assert Terminal.return_to_base().name == "Terminal(velocity, acceleration, start)"
+    with pytest.raises(ConfigError, match="'start'"):
+        Terminal(position="home")

@@ -25,7 +25,8 @@ class Terminal(Constraint):
         Final velocity, ``(2,)`` for all platforms or ``(M, 2)``; ``(0, 0)`` ends at rest. ``None``
         leaves it free.
     position
-        Final position (``(2,)`` or ``(M, 2)``), met within ``radius``; ``None`` leaves it free.
+        Final position (``(2,)`` or ``(M, 2)``), met within ``radius``; ``"start"`` is each platform's
+        own start (return to base); ``None`` leaves it free.
     radius
         ``0`` makes the final position exact; otherwise a disc (a cone, or an inner polygon on OSQP).
     acceleration
@@ -49,12 +50,25 @@ class Terminal(Constraint):
             raise ConfigError("Terminal: give at least one of velocity, position, acceleration.")
         self.velocity = None if velocity is None else self._points("velocity", velocity)
         self.acceleration = None if acceleration is None else self._points("acceleration", acceleration)
-        self.position = None if position is None else self._points("position", position)
+        #: Whether the final position is each platform's start.
+        self.at_start = isinstance(position, str)
+        if self.at_start and position != "start":
+            raise ConfigError(f"Terminal.position: expected coordinates or 'start', got {position!r}.")
+        self.position = None if position is None or self.at_start else self._points("position", position)
         self.radius = positive_number("Terminal.radius", radius, allow_zero=True)
         self.sides = check_sides("Terminal", sides)
         # A final position within a radius is a cone; everything else is linear rows.
-        if self.position is not None and self.radius > 0:
+        if (self.position is not None or self.at_start) and self.radius > 0:
             self.needs = frozenset({"linear", "soc"})
+
+    @classmethod
+    def return_to_base(cls, **kwargs: Any) -> Terminal:
+        """Every platform ends at its own start, at rest (velocity and acceleration zero)."""
+        return cls(velocity=(0.0, 0.0), acceleration=(0.0, 0.0), position="start", **kwargs)
+
+    def targets(self, scenario: Scenario) -> np.ndarray | None:
+        """``(1, 2)`` or ``(M, 2)`` final positions on ``scenario`` (``None`` when free)."""
+        return scenario.start_positions if self.at_start else self.position
 
     @staticmethod
     def _points(name: str, value: Any) -> np.ndarray:
@@ -68,8 +82,9 @@ class Terminal(Constraint):
             parts.append("velocity")
         if self.acceleration is not None:
             parts.append("acceleration")
-        if self.position is not None:
-            parts.append("position" + (f" within {self.radius:g}" if self.radius > 0 else ""))
+        if self.position is not None or self.at_start:
+            where = "start" if self.at_start else "position"
+            parts.append(where + (f" within {self.radius:g}" if self.radius > 0 else ""))
         return f"Terminal({', '.join(parts)})"
 
     def check_scenario(self, scenario: Scenario) -> None:
@@ -85,14 +100,15 @@ class Terminal(Constraint):
         T = ctx.scenario.horizon
         end = np.array([T])
         out = []
+        positions = self.targets(ctx.scenario)
         for m in self.applies_to(ctx.scenario):
             for arr, comps in ((self.velocity, (VX, VY)), (self.acceleration, (AX, AY))):
                 if arr is not None:
                     target = arr[0 if arr.shape[0] == 1 else m]
                     G = state_rows(T, np.array([T, T]), np.array(comps), np.eye(2))
                     out.append(Block(m, "zero", G, target, times=np.array([T, T])))
-            if self.position is not None:
-                target = self.position[0 if self.position.shape[0] == 1 else m]
+            if positions is not None:
+                target = positions[0 if positions.shape[0] == 1 else m]
                 if self.radius == 0:
                     G = state_rows(T, np.array([T, T]), np.array([PX, PY]), np.eye(2))
                     out.append(Block(m, "zero", G, target, times=np.array([T, T])))
