@@ -21,6 +21,7 @@ import numpy as np
 
 import solvers
 from pmht_opt.constraints.base import ConstraintContext
+from pmht_opt.constraints.feasibility import check_feasible
 from pmht_opt.estep import EStepResult, estep, gate_margin, safe_log
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.model import POS, STATE_DIM
@@ -31,6 +32,7 @@ from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario
 from pmht_opt.schedule import Schedule
 from pmht_opt.stopping import ObjectiveTolerance, Progress
+from pmht_opt.verify import verify_plan
 
 
 @dataclass(frozen=True)
@@ -150,6 +152,7 @@ class EMRun:
         self.states = _initial_paths(scenario, initial_paths)
         for con in cfg.constraints:
             con.check_scenario(scenario)
+        check_feasible(scenario, cfg.constraints)
         self.schedule = Schedule.of(cfg.anneal, scenario.r, cfg.max_iter)
         self.criteria = cfg.criteria()
         # "auto" gates only where the gated EM is the dense one to rounding: not with the time-prior update.
@@ -300,6 +303,7 @@ class EMRun:
         reports: tuple[Any, ...] = ()
         if cfg.constraints and self.last_context is not None:
             reports = tuple(c.violation(self.states, self.last_context) for c in cfg.constraints)
+            verify_plan(self.solver, scenario, cfg.constraints, reports)
         return PlanResult(
             scenario=scenario,
             states=self.states,

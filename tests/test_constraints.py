@@ -229,15 +229,25 @@ def _impossible(soft: bool = False) -> list:
     ]
 
 
+def _unreachable() -> list:
+    # From rest, an acceleration of at most 1e-4 moves a platform at most 1e-4 * 80^2 / 2 = 0.32 in the
+    # horizon: a final position 6 units away cannot be reached. No geometric pre-check sees this one.
+    return [AccelLimit(1e-4, platforms=[0]), Terminal(position=(7.0, 1.0), platforms=[0])]
+
+
 @pytest.mark.parametrize("solver", ["clarabel", "osqp", "cvxpy"])
 def test_infeasible_constraints_raise(solver: str) -> None:
     sc = _small()
-    with pytest.raises(InfeasibleError) as err:
+    # Named before any solve: the end lies outside the area.
+    with pytest.raises(InfeasibleError, match=r"Terminal\(position\) and AreaBounds.* platform 0"):
         plan_pmht(sc, PMHTConfig(solver=solver, max_iter=2, constraints=_impossible()))
+    # Found by the solver, named by the diagnosis.
+    with pytest.raises(InfeasibleError) as err:
+        plan_pmht(sc, PMHTConfig(solver=solver, max_iter=2, constraints=_unreachable()))
     msg = str(err.value)
-    assert "AreaBounds" in msg or "Terminal" in msg
-    if solver == "clarabel":
-        assert "platform" in msg and "t = " in msg
+    assert "AccelLimit" in msg or "Terminal" in msg
+    if solver != "osqp":
+        assert "platform 0" in msg and "t = " in msg
 
 
 def test_soft_mode_returns_plan_and_reports_violations() -> None:
@@ -297,10 +307,51 @@ def test_obstacle_report_counts_cutting_segments() -> None:
     states[1, :, 0] = 9.0
     ctx = ConstraintContext(scenario=sc, states=states)
     rep = ob.violation(states, ctx)
-    assert rep.max_violation == 0.0
-    assert rep.details["segment_cuts"] == 1 and rep.details["first_segment_cut"] == (0, 1)
+    # The segment passes through the centre: it enters the disc by its whole radius.
+    assert rep.max_violation == pytest.approx(1.0) and rep.worst == (0, 1)
+    assert rep.details["segments_entering"] == 1
     sq = PolygonObstacle([(4, 4), (6, 4), (6, 6), (4, 6)])
-    assert sq.violation(states, ctx).details["segment_cuts"] == 1
+    rep = sq.violation(states, ctx)
+    assert rep.max_violation == pytest.approx(1.0) and rep.details["segments_entering"] == 1
+    # A segment that only grazes a corner: exact depth along it.
+    graze = np.zeros((1, 2, 6))
+    graze[0, :, 0] = [3.5, 4.5]
+    graze[0, :, 3] = [4.5, 3.5]  # crosses the corner (4, 4) at depth 0
+    assert sq.violation(graze, ConstraintContext(scenario=sc, states=graze)).max_violation == pytest.approx(0.0)
+    dent = graze.copy()
+    dent[0, :, 3] = [4.7, 3.7]  # passes 0.2 / sqrt(2) inside the corner
+    depth = sq.violation(dent, ConstraintContext(scenario=sc, states=dent)).max_violation
+    assert depth == pytest.approx(0.1)
+
+
+@pytest.mark.parametrize("solver", ["clarabel", "osqp", "cvxpy"])
+def test_no_segment_cuts_an_obstacle(solver: str) -> None:
+    # A platform pulled across a disc: the half-planes on both ends of each segment keep every
+    # segment outside it, not only the sampled positions.
+    sc = Scenario(locales=[[9.0, 6.2]], starts=[[1.0, 5.4]], horizon=40, q=1e-6, bounds=(0, 10, 0, 10))
+    disc = CircleObstacle((5.0, 5.0), 1.0)
+
+    def clearance(res: object) -> float:
+        pos = res.positions[0]  # type: ignore[attr-defined]
+        d = pos[1:] - pos[:-1]
+        s = np.clip(np.einsum("ij,ij->i", disc.center - pos[:-1], d) / np.einsum("ij,ij->i", d, d), 0, 1)
+        return float(np.min(np.hypot(*(pos[:-1] + s[:, None] * d - disc.center).T)))
+
+    free = plan_pmht(sc, PMHTConfig(max_iter=10, anneal=None))
+    assert clearance(free) < 0.9  # the straight path would cut the disc
+    res = plan_pmht(sc, PMHTConfig(solver=solver, max_iter=10, anneal=None, constraints=[disc]))
+    assert clearance(res) >= 1.0 - VIOLATION_TOL[solver]
+    assert res.coverage(0.5) == 1.0  # it went round
+
+
+def test_self_intersecting_polygons_are_refused() -> None:
+    star = [(np.cos(a), np.sin(a)) for a in np.pi / 2 + 4 * np.pi / 5 * np.arange(5)]  # a pentagram
+    with pytest.raises(ConfigError, match="crosses itself"):
+        PolygonObstacle(star)
+    with pytest.raises(ConfigError, match="in a line"):
+        PolygonObstacle([(0, 0), (1, 0), (2, 0), (1, 1)])
+    PolygonObstacle([(0, 0), (1, 0), (1, 1), (0, 1)])  # a square is fine, either orientation
+    PolygonObstacle([(0, 0), (0, 1), (1, 1), (1, 0)])
 
 
 # ---------------------------------------------------------------- blocks and the soft rule

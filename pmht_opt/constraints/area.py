@@ -8,6 +8,7 @@ import numpy as np
 
 from pmht_opt.constraints.base import Constraint, ConstraintContext
 from pmht_opt.constraints.blocks import Block, state_rows
+from pmht_opt.constraints.params import is_real
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.model import PX, PY
 
@@ -24,10 +25,11 @@ class AreaBounds(Constraint):
 
     def __init__(self, xmin: float, xmax: float, ymin: float, ymax: float, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        try:
-            box = np.array([xmin, xmax, ymin, ymax], dtype=float)
-        except (TypeError, ValueError):
-            raise ConfigError("AreaBounds: expected four numbers xmin, xmax, ymin, ymax.") from None
+        if not all(is_real(v) for v in (xmin, xmax, ymin, ymax)):
+            raise ConfigError(
+                f"AreaBounds: expected four numbers xmin, xmax, ymin, ymax, got {(xmin, xmax, ymin, ymax)!r}."
+            )
+        box = np.array([xmin, xmax, ymin, ymax], dtype=float)
         if not np.all(np.isfinite(box)) or box[0] >= box[1] or box[2] >= box[3]:
             raise ConfigError(f"AreaBounds: expected finite xmin < xmax and ymin < ymax, got {box.tolist()}.")
         self.box = box
@@ -43,6 +45,11 @@ class AreaBounds(Constraint):
     @property
     def name(self) -> str:
         return "AreaBounds({:g}, {:g}, {:g}, {:g})".format(*self.box)
+
+    def scale(self, scenario: Scenario) -> float:
+        """The box's smaller side."""
+        xmin, xmax, ymin, ymax = self.box
+        return float(min(xmax - xmin, ymax - ymin))
 
     def check_scenario(self, scenario: Scenario) -> None:
         super().check_scenario(scenario)

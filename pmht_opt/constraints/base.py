@@ -151,6 +151,12 @@ class Constraint(abc.ABC):
                 f"{self.name}: platforms {bad} do not exist (the scenario has {scenario.n_platforms})."
             )
 
+    def scale(self, scenario: Scenario) -> float:
+        """The constraint's own size (a limit, a radius, an area's side), in its own units:
+        verification tolerances are relative to it. The default is the scenario's extent."""
+        xmin, xmax, ymin, ymax = scenario.bounds or (0.0, 1.0, 0.0, 1.0)
+        return max(xmax - xmin, ymax - ymin, 1e-12)
+
     @abc.abstractmethod
     def blocks(self, ctx: ConstraintContext) -> list[Block]:
         """Rows for this iteration's M-step, one or more blocks per bound platform."""

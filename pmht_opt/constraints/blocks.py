@@ -217,3 +217,40 @@ def with_span_pattern(block: Block) -> sp.csr_matrix:
     )
     both.sum_duplicates()
     return both
+
+
+def difference_block(
+    platform: int,
+    T: int,
+    times: np.ndarray,
+    stencil: dict[int, float],
+    start: np.ndarray,
+    radii: np.ndarray,
+    comps: tuple[int, int],
+    sides: int = DEFAULT_SIDES,
+) -> Block:
+    """``||sum_k c_k p_{t+k}|| <= radius`` at each of ``times``: a cone on a finite difference of positions.
+
+    ``stencil`` maps offsets ``k`` to coefficients ``c_k`` (``{0: 1, -1: -1}`` is the displacement
+    ``p_t - p_{t-1}``; ``{1: 1, 0: -2, -1: 1}`` the second difference); ``start`` is the known position
+    ``p_0``, whose terms move to the right-hand side. Per unit the rows are ``(radius, -sum_k c_k
+    p_{t+k})``.
+    """
+    times = np.asarray(times, dtype=int)
+    k = times.shape[0]
+    radii = np.broadcast_to(np.asarray(radii, dtype=float), (k,))
+    rows, cols, vals = [], [], []
+    h = np.zeros((k, 3))
+    h[:, 0] = radii
+    for offset, coef in stencil.items():
+        steps = times + offset
+        free = steps >= 1
+        for axis, comp in enumerate(comps):
+            rows.append(3 * np.flatnonzero(free) + 1 + axis)
+            cols.append(STATE_DIM * (steps[free] - 1) + comp)
+            vals.append(np.full(int(free.sum()), coef))
+            h[~free, 1 + axis] -= coef * start[axis]
+    G = sp.csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * k, STATE_DIM * T)
+    )
+    return Block(platform, "soc", G, h.ravel(), dim=3, times=times, sides=sides)

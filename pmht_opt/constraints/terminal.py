@@ -66,6 +66,20 @@ class Terminal(Constraint):
         """Every platform ends at its own start, at rest (velocity and acceleration zero)."""
         return cls(velocity=(0.0, 0.0), acceleration=(0.0, 0.0), position="start", **kwargs)
 
+    def scale(self, scenario: Scenario) -> float:
+        """A final position's radius, or else the speed (acceleration) of crossing the scenario's area
+        once in the horizon (twice divided by the horizon for an acceleration)."""
+        extent = super().scale(scenario)
+        span = scenario.horizon * scenario.dt
+        sizes = []
+        if self.position is not None or self.at_start:
+            sizes.append(self.radius if self.radius > 0 else 1e-3 * extent)
+        if self.velocity is not None:
+            sizes.append(extent / span)
+        if self.acceleration is not None:
+            sizes.append(extent / span**2)
+        return min(sizes)
+
     def targets(self, scenario: Scenario) -> np.ndarray | None:
         """``(1, 2)`` or ``(M, 2)`` final positions on ``scenario`` (``None`` when free)."""
         return scenario.start_positions if self.at_start else self.position

@@ -123,6 +123,10 @@ class VisitAll(Constraint):
         label = "" if self.radius is None else f"{self.radius:g}"
         return f"{type(self).__name__}({label})"
 
+    def scale(self, scenario: Scenario) -> float:
+        """The visit radius."""
+        return self.radius_for(scenario)
+
     def radius_for(self, scenario: Scenario) -> float:
         """The visit radius on ``scenario``: the given one, or the scenario's coverage radius."""
         return scenario.coverage_radius if self.radius is None else self.radius

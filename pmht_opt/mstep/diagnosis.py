@@ -1,9 +1,11 @@
 """Naming the constraints that make an M-step infeasible.
 
-When a backend certifies that a platform's constrained M-step has no solution, the same QP is solved
-again with every block soft (:meth:`~pmht_opt.mstep.rows.Imposed.relaxed`, a large penalty weight):
-the slacks that stay positive belong to the constraints that cannot all be met, at the time steps
-where they clash.
+When a platform's constrained M-step fails (a verdict of infeasibility, or a solver that stalls, as
+interior-point and ADMM solvers do on infeasible problems without always certifying it), the same QP
+is solved again with every block soft (:meth:`~pmht_opt.mstep.rows.Imposed.relaxed`, a large penalty
+weight), by Clarabel where it is installed: the slacks that stay positive belong to the constraints
+that cannot all be met, at the time steps where they clash. If none does, the problem was feasible and
+the failure was the solver's own: a :class:`~pmht_opt.exceptions.SolverError` with its status.
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 import solvers
-from pmht_opt.exceptions import ConfigError, InfeasibleError, SolverError
+from pmht_opt.exceptions import ConfigError, InfeasibleError, PmhtOptError, SolverError
 from pmht_opt.mstep.platform import HorizonQP
 from pmht_opt.mstep.rows import PlatformRows
 
@@ -29,21 +31,32 @@ def diagnose(
     r: float,
     rows: PlatformRows,
     sol: solvers.QPSolution,
-) -> InfeasibleError:
-    """The error for platform ``platform``'s infeasible M-step, naming culprits where it can.
+) -> PmhtOptError:
+    """The error for platform ``platform``'s failed M-step: which constraints conflict, where it can tell.
 
     ``probe`` is a fresh full-horizon :class:`~pmht_opt.mstep.platform.HorizonQP` of the platform;
     ``sol`` is the infeasible answer.
     """
     names = sorted({i.name for i in rows.items if not i.soft})
     where = f"platform {platform}: the constraints {', '.join(names)} cannot all be met"
-    plain = InfeasibleError(f"{sol.backend}: {where} (status {sol.raw_status}).", sol.backend, sol.raw_status)
+    plain: PmhtOptError
+    if sol.status in solvers.INFEASIBLE:
+        plain = InfeasibleError(
+            f"{sol.backend}: {where} (status {sol.raw_status}).", sol.backend, sol.raw_status
+        )
+    else:
+        plain = SolverError(
+            f"{sol.backend}: the M-step solve failed (platform {platform}) with status {sol.raw_status!r}; "
+            "its constraints can be met (a relaxed solve needs no slack), so the failure is the solver's.",
+            sol.backend,
+            sol.raw_status,
+        )
     relaxed_rows = PlatformRows([i.relaxed(DIAGNOSIS_WEIGHT) for i in rows.items], ((-1,),))
     try:
         relaxed = probe.solve(W, WZ, r, relaxed_rows)
     except (SolverError, ConfigError):
         return plain
-    if relaxed.x is None or probe.extra is None:
+    if not relaxed.usable(True) or relaxed.x is None or probe.extra is None:
         return plain
     culprits: dict[str, list[tuple[int, str | None, float]]] = {}
     for value, owner in zip(probe.slacks(relaxed.x), probe.extra.slack_owner, strict=True):

@@ -23,6 +23,8 @@ from pmht_opt.model import PX, PY, STATE_DIM, MotionModel
 from pmht_opt.mstep.formulation import QPLayout, dynamics_rows
 from pmht_opt.mstep.rows import ExtraRows, PlatformRows, assemble
 
+#: A backend session keeps its setup-time scaling while ``r`` stays within this factor of its setup ``r``.
+RESCALE = 2.0
 #: Weights at or below this fraction of a platform's largest do not extend the horizon of its QP.
 NEGLIGIBLE_WEIGHT = 1e-12
 
@@ -160,6 +162,7 @@ class HorizonQP:
         self.session: solvers.QPSession | None = None
         self.extra: ExtraRows | None = None
         self._pattern: tuple[object, ...] | None = None
+        self._setup_r: float | None = None
         self._rows_key: tuple[tuple[int, ...], ...] | None = None
 
     def _P(self, n_slack: int) -> sp.csc_matrix:
@@ -204,19 +207,28 @@ class HorizonQP:
     def solve(
         self, W: np.ndarray, WZ: np.ndarray, r: float, rows: PlatformRows | None = None
     ) -> solvers.QPSolution:
-        """Solve for weights ``W (T,)``, weighted locale sums ``WZ (T, 2)`` and constraint rows."""
+        """Solve for weights ``W (T,)``, weighted locale sums ``WZ (T, 2)`` and constraint rows.
+
+        A session's scaling (both backends equilibrate at setup) is kept while ``r`` stays within a
+        factor :data:`RESCALE` of the ``r`` it was set up with; past that, and whenever the rows'
+        structure changes, the session is set up afresh. Under annealing ``r`` shrinks a hundredfold,
+        and a stale scaling leaves interior-point solves "almost solved".
+        """
         key = rows.key if rows is not None else ()
-        if self.session is not None and key == self._rows_key:  # the same rows: only the weights moved
+        stale = self._setup_r is not None and not (1.0 / RESCALE <= r / self._setup_r <= RESCALE)
+        if self.session is not None and key == self._rows_key and not stale:  # only the weights moved
             q = self._cost(W, WZ, r)
             self.session.update(P_data=self.diag[self.stored], q=q)
-            return self._retry(self.session.solve(), q)
+            return self._retry(self.session.solve(), q, fresh=False)
         self._rows_key = key
         self.extra = assemble(rows.items, self.layout.n, self.col_map) if rows and rows.items else None
         pattern = None if self.extra is None else self.extra.pattern_key()
         q = self._cost(W, WZ, r)
         A, b, cones = self._constraints()
-        if self.session is None or pattern != self._pattern:
+        fresh = self.session is None or pattern != self._pattern or stale
+        if self.session is None or fresh:
             self._pattern = pattern
+            self._setup_r = r
             n_slack = 0 if self.extra is None else self.extra.n_slack
             self.problem = solvers.QPProblem(P=self._P(n_slack), q=q, A=A, b=b, cones=cones)
             self.session = self._open(self.problem, self.options)
@@ -224,7 +236,7 @@ class HorizonQP:
             self.session.update(P_data=self.diag[self.stored], q=q)
         else:
             self.session.update(P_data=self.diag[self.stored], q=q, A_data=A.data, b=b)
-        return self._retry(self.session.solve(), q)
+        return self._retry(self.session.solve(), q, fresh=fresh)
 
     def _open(self, problem: solvers.QPProblem, options: dict[str, Any]) -> solvers.QPSession:
         try:
@@ -234,17 +246,26 @@ class HorizonQP:
         except solvers.QPError as err:
             raise SolverError(f"cannot set up the M-step QP: {err}") from err
 
-    def _retry(self, sol: solvers.QPSolution, q: np.ndarray) -> solvers.QPSolution:
-        """Re-solve with the backend's slower, more robust settings, in turn, if the fast ones failed.
+    def _retry(self, sol: solvers.QPSolution, q: np.ndarray, fresh: bool) -> solvers.QPSolution:
+        """After a failed solve: first the same settings on a fresh session (a new scaling), if the
+        failed one was an updated session; then the backend's slower, more robust settings in turn.
 
-        The set that solves is kept for this platform's later solves (its session, warm, replaces the
-        failed one), so a run does not pay for the failing settings every iteration.
+        The session that solves is kept for this platform's later solves, and with it a retry set that
+        solved, so a run does not pay for the failing settings every iteration.
         """
-        if not self.state.retries.sets or sol.ok or sol.status in solvers.INFEASIBLE:
+        if sol.ok or sol.status in solvers.INFEASIBLE:
             return sol
         A, b, cones = self._constraints()
         n_slack = 0 if self.extra is None else self.extra.n_slack
         problem = solvers.QPProblem(P=self._P(n_slack), q=q, A=A, b=b, cones=cones)
+        if not fresh:
+            session = self._open(problem, self.options)
+            again = session.solve()
+            if again.ok:
+                self.problem, self.session = problem, session
+                return again
+        if not self.state.retries.sets:
+            return sol
         last: list[solvers.QPSession] = []
 
         def attempt(settings: dict[str, Any]) -> solvers.QPSolution:

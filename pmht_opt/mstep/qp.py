@@ -9,7 +9,7 @@ import numpy as np
 
 import solvers
 from pmht_opt.constraints.base import Constraint
-from pmht_opt.exceptions import InfeasibleError, SolverError, UnknownSolverError
+from pmht_opt.exceptions import InfeasibleError, PmhtOptError, SolverError, UnknownSolverError
 from pmht_opt.model import STATE_DIM
 from pmht_opt.mstep.base import MStep, MStepData, MStepOutput
 from pmht_opt.mstep.diagnosis import diagnose
@@ -123,7 +123,8 @@ class QPMStep(MStep):
             body[m] = self.model.propagate(self.x0[m], self.T)[1:]
         for m, (sol, states, u) in zip(active, answers, strict=True):
             platform_rows = rows.get(m)
-            if sol.status in solvers.INFEASIBLE and platform_rows is not None and platform_rows.items:
+            failed = not sol.usable(self.accept_inaccurate)
+            if failed and platform_rows is not None and platform_rows.items:
                 raise self._diagnose(m, data, platform_rows, sol)
             check_solution(sol, self.accept_inaccurate, platform=m)
             assert states is not None and u is not None
@@ -141,10 +142,15 @@ class QPMStep(MStep):
             out.status, out.raw_status = worst.status, worst.raw_status
         return out
 
-    def _diagnose(
-        self, m: int, data: MStepData, rows: PlatformRows, sol: solvers.QPSolution
-    ) -> InfeasibleError:
-        probe = self._platform(m).qp(self.T)
+    def _diagnose(self, m: int, data: MStepData, rows: PlatformRows, sol: solvers.QPSolution) -> PmhtOptError:
+        """Why platform ``m``'s constrained solve failed (:mod:`pmht_opt.mstep.diagnosis`), asked of
+        Clarabel where it is installed (an interior-point solve of the relaxed problem is quick)."""
+        if "clarabel" in solvers.available_solvers():  # it takes this backend's rows, cones or not
+            session_class = solvers.get_session_class("clarabel")
+            options = CONSTRAINED_DEFAULTS["clarabel"]
+            probe = PlatformQP(self.model, self.x0[m], self.T, session_class, options, options).qp(self.T)
+        else:
+            probe = self._platform(m).qp(self.T)
         return diagnose(probe, m, data.W[:, m], data.WZ[:, m], data.r, rows, sol)
 
     def close(self) -> None:

@@ -157,11 +157,11 @@ class _Rows:
         self.count += G.shape[0]
         return start
 
-    def slack(self, rows: np.ndarray, slacks: np.ndarray) -> None:
-        """Add slack column ``slacks[i]`` with coefficient +1 to ``b - A x`` of row ``rows[i]``."""
+    def slack(self, rows: np.ndarray, slacks: np.ndarray, scale: np.ndarray | float = 1.0) -> None:
+        """Add slack column ``slacks[i]`` with coefficient ``scale[i]`` to ``b - A x`` of row ``rows[i]``."""
         self.rows.append(rows)
         self.cols.append(slacks)
-        self.vals.append(-np.ones(rows.size))
+        self.vals.append(-np.broadcast_to(scale, rows.shape).astype(float))
 
     def nonneg_slacks(self, slacks: np.ndarray) -> None:
         """Rows ``s >= 0`` for the given slack columns."""
@@ -182,10 +182,10 @@ def assemble(imposed: Sequence[Imposed], n_vars: int, col_map: np.ndarray) -> Ex
     slack0 = n_vars
     for item in imposed:
         blk = item.block
-        G = with_span_pattern(blk).tocoo()
+        G, h, unit_scale = _normalised(blk)
         k = G.shape[0]
         if not item.soft:
-            out.block(G, 1.0, blk.h)
+            out.block(G, 1.0, h)
             out.cones.extend(_hard_cones(blk.kind, k, blk.dim))
             continue
         n = blk.units // blk.group
@@ -199,9 +199,9 @@ def assemble(imposed: Sequence[Imposed], n_vars: int, col_map: np.ndarray) -> Ex
             )
             for u in firsts.tolist()
         )
-        start = out.block(G, 1.0, blk.h)
+        start = out.block(G, 1.0, h)
         if blk.kind == "zero":  # |h - G z| <= s: two inequality rows, s >= 0 implied
-            out.block(G, -1.0, blk.h)
+            out.block(G, -1.0, h)
             out.slack(start + np.arange(k), np.repeat(sl, blk.group))
             out.slack(start + k + np.arange(k), np.repeat(sl, blk.group))
             out.cones.append(solvers.Nonneg(2 * k))
@@ -209,8 +209,8 @@ def assemble(imposed: Sequence[Imposed], n_vars: int, col_map: np.ndarray) -> Ex
             out.slack(start + np.arange(k), np.repeat(sl, blk.group))
             out.cones.append(solvers.Nonneg(k))
             out.nonneg_slacks(sl)
-        else:  # (h - G z)_0 + s >= ||(h - G z)_1..||, s >= 0
-            out.slack(start + blk.dim * np.arange(blk.units), sl)
+        else:  # (h - G z)_0 + s >= ||(h - G z)_1..||, s >= 0 (rows scaled: so is the slack)
+            out.slack(start + blk.dim * np.arange(blk.units), sl, unit_scale)
             out.cones.extend(solvers.SOC(blk.dim) for _ in range(blk.units))
             out.nonneg_slacks(sl)
     width = n_vars + n_slack
@@ -227,6 +227,24 @@ def assemble(imposed: Sequence[Imposed], n_vars: int, col_map: np.ndarray) -> Ex
     return ExtraRows(
         A=A, b=b, cones=_merge(out.cones), n_slack=n_slack, slack_cost=slack_cost, slack_owner=owners
     )
+
+
+def _normalised(blk: Block) -> tuple[sp.coo_matrix, np.ndarray, np.ndarray]:
+    """``(G, h)`` of ``blk`` with each second-order cone divided by its radius ``h_0`` (when positive),
+    and the factor per unit.
+
+    A cone is unchanged by a positive factor, but a solver's feasibility tolerance is absolute on the
+    rows it is given: divided by its radius, a limit of 1e-3 is met to the same relative precision as
+    a limit of 1. Linear rows are left as they are (unit normals and bounds).
+    """
+    G = with_span_pattern(blk).tocoo()
+    if blk.kind != "soc":
+        return G, blk.h, np.ones(blk.units)
+    radius = blk.h[:: blk.dim]
+    scale = np.where(radius > 0, 1.0 / np.where(radius > 0, radius, 1.0), 1.0)
+    per_row = np.repeat(scale, blk.dim)
+    G.data = G.data * per_row[G.row]
+    return G, blk.h * per_row, scale
 
 
 def _hard_cones(kind: str, rows: int, dim: int) -> list[solvers.Cone]:

@@ -62,7 +62,14 @@ CONSTRAINED_DEFAULTS: dict[str, dict[str, Any]] = {
 
 #: Settings tried in turn after a failed QP solve.
 RETRIES: dict[str, RetryChain] = {
-    "clarabel": RetryChain(({"iterative_refinement_enable": True},)),
+    "clarabel": RetryChain(
+        (
+            {"iterative_refinement_enable": True},
+            {"equilibrate_max_iter": 50},
+            {"static_regularization_constant": 1e-7},
+            {"max_step_fraction": 0.9},
+        )
+    ),
     "osqp": RetryChain(({"rho": 100.0, "adaptive_rho": False}, {"rho": 30.0, "adaptive_rho": False})),
 }
 
