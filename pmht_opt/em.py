@@ -220,8 +220,9 @@ class EMRun:
             self.log_k = safe_log(es.platform_prior())
         ctx = ConstraintContext(scenario=self.scenario, states=self.states, estep=es, iteration=it)
         active = schedule.active(cfg.constraints, it)
+        strengths = schedule.strengths(cfg.constraints, it)
         t0 = time.perf_counter()
-        out = self.mstep.solve(MStepData(W=es.W, WZ=es.WZ, r=r, ctx=ctx, active=active))
+        out = self.mstep.solve(MStepData(W=es.W, WZ=es.WZ, r=r, ctx=ctx, active=active, strengths=strengths))
         mstep_time = time.perf_counter() - t0
         self.last_context = ctx
         self._notify(self.callbacks.after_mstep, out)

@@ -45,25 +45,50 @@ class Schedule:
         """The penalty of iteration ``iteration`` (``1..max_iter``)."""
         return float(self.r[iteration - 1])
 
-    def imposes(self, constraint: Constraint, iteration: int) -> bool:
-        """Whether ``constraint`` is imposed in iteration ``iteration``.
+    def start(self, constraint: Constraint) -> int:
+        """The first iteration that imposes ``constraint``.
 
         A constraint without a warm-up is imposed throughout. One with ``warmup = k`` waits ``k``
-        iterations after annealing ends, but is always imposed on the last iteration, so the returned
-        plan has it: from iteration ``min(settled - 1 + k, max_iter - 1) + 1`` on.
+        iterations after annealing ends, but starts early enough to reach full strength (after its
+        ``ramp``) by the last iteration, so the returned plan has it.
         """
         if constraint.warmup is None:
-            return True
-        return iteration > min(self.settled - 1 + constraint.warmup, self.max_iter - 1)
+            return 1
+        latest = max(1, self.max_iter - max(constraint.ramp, 1) + 1)
+        return min(self.settled + constraint.warmup, latest)
+
+    def imposes(self, constraint: Constraint, iteration: int) -> bool:
+        """Whether ``constraint`` is imposed in iteration ``iteration``."""
+        return iteration >= self.start(constraint)
+
+    def strength(self, constraint: Constraint, iteration: int) -> float:
+        """How much of ``constraint`` iteration ``iteration`` imposes, in ``(0, 1]``.
+
+        A constraint with a ``ramp`` of ``n`` iterations is brought in over its first ``n`` (fewer if
+        the run ends sooner): ``k / n`` in its ``k``-th, then 1. Others are imposed whole.
+        """
+        ramp = constraint.ramp
+        if ramp <= 0:
+            return 1.0
+        first = self.start(constraint)
+        span = max(1, min(ramp, self.max_iter - first + 1))
+        return min(1.0, (iteration - first + 1) / span)
 
     def active(self, constraints: Sequence[Constraint], iteration: int) -> tuple[int, ...]:
         """Indices of the ``constraints`` imposed in ``iteration``."""
         return tuple(i for i, c in enumerate(constraints) if self.imposes(c, iteration))
 
+    def strengths(self, constraints: Sequence[Constraint], iteration: int) -> tuple[float, ...]:
+        """The :meth:`strength` of each active constraint, in the order of :meth:`active`."""
+        return tuple(self.strength(constraints[i], iteration) for i in self.active(constraints, iteration))
+
     def settled_at(self, constraints: Sequence[Constraint], iteration: int) -> bool:
         """Whether ``iteration`` and the one before ran in the final regime: at the scenario's ``r``
-        and with every constraint imposed. Convergence is only judged from there, so the last two
-        objectives compared were computed alike and the returned plan has every constraint."""
+        and with every constraint imposed at full strength. Convergence is only judged from there, so
+        the last two objectives compared were computed alike and the returned plan has every
+        constraint (the first iteration at the final ``r`` still compares against another ``r``)."""
         if iteration <= self.settled:
             return False
-        return all(self.imposes(c, iteration - 1) for c in constraints)
+        return all(
+            self.imposes(c, iteration - 1) and self.strength(c, iteration - 1) == 1.0 for c in constraints
+        )

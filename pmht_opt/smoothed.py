@@ -81,7 +81,7 @@ class TourVisits(VisitAll):
         sides: int = DEFAULT_SIDES,
         **kwargs: Any,
     ) -> None:
-        super().__init__(radius, warmup=0, sides=sides, **kwargs)
+        super().__init__(radius, warmup=0, sides=sides, ramp=0, **kwargs)
         self.platform = np.asarray(platform, dtype=int)
         self.windows = np.asarray(windows, dtype=int)
 

@@ -81,7 +81,7 @@ def test_tolerance_is_judged_only_once_settled() -> None:
     assert res.n_iterations == 21  # the first iteration after the schedule's last change
     # A warming-up constraint postpones it too.
     warm = po.PMHTConfig(max_iter=200, tol=0.5, anneal=None, constraints=[po.VisitAll(0.5, warmup=6)])
-    assert po.plan_pmht(sc, warm).n_iterations >= 8  # imposed from 7, compared from 8
+    assert po.plan_pmht(sc, warm).n_iterations >= 11  # imposed from 7, whole from 10, compared from 11
 
 
 @pytest.mark.parametrize(
@@ -131,11 +131,16 @@ def test_schedule_answers_r_settled_and_constraints() -> None:
     assert sched.imposes(always, 1)
     assert not sched.imposes(visits, 14) and sched.imposes(visits, 15)
     assert sched.active([always, visits], 3) == (0,)
+    # Brought in over its ramp of 4 iterations, at full strength from iteration 18.
+    assert [sched.strength(visits, i) for i in (15, 16, 17, 18, 30)] == [0.25, 0.5, 0.75, 1.0, 1.0]
+    assert sched.strength(always, 1) == 1.0 and sched.strengths([always, visits], 16) == (1.0, 0.5)
     assert not sched.settled_at([], 10) and sched.settled_at([], 11)
-    assert not sched.settled_at([visits], 15) and sched.settled_at([visits], 16)
-    # A warm-up longer than the run: imposed on the last iteration still.
+    assert not sched.settled_at([visits], 18) and sched.settled_at([visits], 19)
+    # A warm-up longer than the run: started early enough to end at full strength.
     late = po.VisitAll(0.1, warmup=100)
-    assert not sched.imposes(late, 29) and sched.imposes(late, 30)
+    assert not sched.imposes(late, 26) and sched.imposes(late, 27) and sched.strength(late, 30) == 1.0
+    whole = po.VisitAll(0.1, warmup=100, ramp=0)
+    assert not sched.imposes(whole, 29) and sched.strength(whole, 30) == 1.0
     plain = po.Schedule.of(po.Anneal(iterations=0), 0.01, 5)
     assert plain.settled == 1 and np.all(plain.r == 0.01)
 

@@ -59,12 +59,16 @@ class ConstraintContext:
         The E-step that produced this iteration's weights (MAP assignments for visit constraints).
     iteration
         EM iteration about to be solved (``1..``).
+    strength
+        How much of the constraint this iteration imposes, in ``(0, 1]`` (the planner's schedule
+        brings constraints with a ``ramp`` in gradually); 1 is the constraint itself.
     """
 
     scenario: Scenario
     states: np.ndarray
     estep: EStepResult | None = None
     iteration: int = 1
+    strength: float = 1.0
 
 
 @dataclass
@@ -122,6 +126,8 @@ class Constraint(abc.ABC):
     dynamic: ClassVar[bool] = False
     #: ``None``: imposed from the first iteration; ``k``: from ``k`` iterations after annealing ends.
     warmup: int | None = None
+    #: Iterations over which the schedule brings the constraint in (``ConstraintContext.strength``).
+    ramp: int = 0
 
     def __init__(self, soft: bool = False, weight: float = 1e4, platforms: Any = None) -> None:
         if not isinstance(soft, (bool, np.bool_)):

@@ -5,8 +5,9 @@ bound on the velocity *state* does not bound the displacement ``p_t - p_{t-1}`` 
 plan can meet a speed limit on its states and still jump. Each limit therefore holds on both:
 
 * :class:`SpeedLimit`: ``||v_t|| <= vmax`` and ``||p_t - p_{t-1}|| <= vmax dt`` for ``t = 1..T``;
-* :class:`AccelLimit`: ``||a_t|| <= amax`` and ``||p_{t+1} - 2 p_t + p_{t-1}|| <= amax dt^2`` for the
-  steps where the second difference exists.
+* :class:`AccelLimit`: ``||a_t|| <= amax`` and ``||p_{t+1} - 2 p_t + p_{t-1}|| <= amax dt^2`` for
+  ``t = 0..T-1``, with ``p_{-1} = p_0 - v_0 dt`` (the start's own velocity): the first step may not
+  change the velocity more than the limit allows either.
 
 Every bound is a second-order cone per step (inner polygons on a backend without cones). A start
 whose state already breaks a limit is rejected before planning (:class:`~pmht_opt.ScenarioError`):
@@ -85,11 +86,21 @@ class _NormLimit(Constraint):
         for m in self.applies_to(sc):
             lim = self.limit_for(m)
             out.append(disc_block(m, T, times, self.comps, np.zeros(2), np.full(T, lim), self.sides))
+            bound = lim * sc.dt**self.order
+            start = sc.start_positions[m]
             if steps.size:
-                bound = np.full(steps.size, lim * sc.dt**self.order)
-                start = sc.start_positions[m]
                 stencil = dict(self.stencil)
-                out.append(difference_block(m, T, steps, stencil, start, bound, (PX, PY), self.sides))
+                out.append(
+                    difference_block(
+                        m, T, steps, stencil, start, np.full(steps.size, bound), (PX, PY), self.sides
+                    )
+                )
+            if self.order == 2:  # t = 0: p_1 - p_0 - v_0 dt, the change from the start's own velocity
+                first = difference_block(
+                    m, T, np.array([0]), {1: 1.0, 0: -1.0}, start, np.array([bound]), (PX, PY), self.sides
+                )
+                first.h[1:] += sc.initial_states[m, [VX, VY]] * sc.dt
+                out.append(first)
         return out
 
     def measured(self, states: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -101,6 +112,9 @@ class _NormLimit(Constraint):
         for offset, coef in self.stencil:
             lo = 1 + offset
             diff = diff + coef * pos[:, lo : lo + diff.shape[1]]
+        if self.order == 2:  # t = 0 (module docstring)
+            first = pos[:, 1] - pos[:, 0] - states[:, 0][:, [VX, VY]] * dt
+            diff = np.concatenate([first[:, None, :], diff], axis=1)
         return state, np.hypot(diff[..., 0], diff[..., 1]) / dt**self.order
 
     def violation(self, states: np.ndarray, ctx: ConstraintContext) -> ConstraintReport:

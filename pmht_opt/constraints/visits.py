@@ -87,6 +87,12 @@ class VisitAll(Constraint):
     resolved by :func:`choose_visits`). A cone per locale (an inner polygon on a backend without
     cones).
 
+    The visits are brought in over ``ramp`` iterations: while the schedule's strength ``s`` is below
+    1, locale ``n``'s disc is ``radius + (1 - s) (d_n - radius)`` with ``d_n`` its distance from the
+    current path at the visit time, so each iteration closes a share of every gap instead of demanding
+    the whole manoeuvre at once (which, from paths far from some locales, can ask for process noise
+    orders of magnitude above the rest of the plan, leave the area, and defeat first-order solvers).
+
     Parameters
     ----------
     radius
@@ -96,8 +102,10 @@ class VisitAll(Constraint):
         EM iterations run without the constraint first, so the MAP times come from paths that already
         pass near the locales (from the standing start every time is equally likely). They are counted
         from the end of an annealing schedule (the wide early penalties blur the MAP times); the
-        planner's schedule (:class:`~pmht_opt.schedule.Schedule`) always imposes the constraint on the
-        last iteration at least, so the returned plan has it.
+        planner's schedule (:class:`~pmht_opt.schedule.Schedule`) starts it early enough to be at full
+        strength on the last iteration, so the returned plan has it.
+    ramp
+        Iterations over which the visit discs shrink to ``radius`` (above); 0 imposes them whole.
     sides
         Sides of the inner polygon on a backend without cones.
     soft, weight, platforms
@@ -109,13 +117,21 @@ class VisitAll(Constraint):
     needs = frozenset({"soc"})
 
     def __init__(
-        self, radius: float | None = None, warmup: int = 10, sides: int = DEFAULT_SIDES, **kwargs: Any
+        self,
+        radius: float | None = None,
+        warmup: int = 10,
+        sides: int = DEFAULT_SIDES,
+        ramp: int = 4,
+        **kwargs: Any,
     ) -> None:
         super().__init__(**kwargs)
         self.radius = None if radius is None else positive_number(f"{type(self).__name__}.radius", radius)
         if isinstance(warmup, bool) or not isinstance(warmup, (int, np.integer)) or warmup < 0:
             raise ConfigError(f"VisitAll.warmup: expected an integer >= 0, got {warmup!r}.")
         self.warmup: int | None = int(warmup)
+        if isinstance(ramp, bool) or not isinstance(ramp, (int, np.integer)) or ramp < 0:
+            raise ConfigError(f"VisitAll.ramp: expected an integer >= 0, got {ramp!r}.")
+        self.ramp = int(ramp)
         self.sides = check_sides("VisitAll", sides)
 
     @property
@@ -137,6 +153,9 @@ class VisitAll(Constraint):
 
     def blocks(self, ctx: ConstraintContext) -> list[Block]:
         platform, time = self.visits(ctx)
+        rho = self.radius_for(ctx.scenario)
+        gap = np.hypot(*(ctx.states[platform, time][:, POS] - ctx.scenario.locales).T) - rho
+        radii = rho + (1.0 - ctx.strength) * np.maximum(gap, 0.0)
         out = []
         for m in range(ctx.scenario.n_platforms):
             mine = np.flatnonzero(platform == m)
@@ -148,7 +167,7 @@ class VisitAll(Constraint):
                         time[mine],
                         (PX, PY),
                         ctx.scenario.locales[mine],
-                        np.full(mine.size, self.radius_for(ctx.scenario)),
+                        radii[mine],
                         self.sides,
                         labels=[f"locale {n}" for n in mine.tolist()],
                     )

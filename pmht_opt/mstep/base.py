@@ -34,6 +34,9 @@ class MStepData:
     active
         Indices, into the backend's constraints, of those imposed in this M-step (the planner's
         schedule decides).
+    strengths
+        How much of each active constraint is imposed (:attr:`ConstraintContext.strength`), in the
+        order of ``active``; empty means every one whole.
     """
 
     W: np.ndarray
@@ -41,6 +44,7 @@ class MStepData:
     r: float
     ctx: ConstraintContext | None = None
     active: tuple[int, ...] = ()
+    strengths: tuple[float, ...] = ()
 
     def synthetic(self) -> tuple[np.ndarray, np.ndarray]:
         """Synthetic measurements ``WZ / W`` (zero where ``W == 0``) and their weights ``W``."""

@@ -99,7 +99,7 @@ class JointCvxpyMStep(MStep):
         cones: list[solvers.Cone] = [solvers.Zero(self.A_dyn.shape[0])]
         slack_cost = [np.zeros(0)]
         n_slack = 0
-        for m, platform_rows in sorted(self.rows.rows(data.ctx, data.active).items()):
+        for m, platform_rows in sorted(self.rows.rows(data.ctx, data.active, data.strengths).items()):
             col_map = lay.x(m, t_idx[:, None], np.arange(STATE_DIM)).ravel()
             extra = assemble(platform_rows.items, n + n_slack, col_map)
             blocks.append(extra.A)

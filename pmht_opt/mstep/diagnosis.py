@@ -1,69 +1,103 @@
 """Naming the constraints that make an M-step infeasible.
 
 When a platform's constrained M-step fails (a verdict of infeasibility, or a solver that stalls, as
-interior-point and ADMM solvers do on infeasible problems without always certifying it), the same QP
-is solved again with every block soft (:meth:`~pmht_opt.mstep.rows.Imposed.relaxed`, a large penalty
-weight), by Clarabel where it is installed: the slacks that stay positive belong to the constraints
-that cannot all be met, at the time steps where they clash. If none does, the problem was feasible and
-the failure was the solver's own: a :class:`~pmht_opt.exceptions.SolverError` with its status.
+interior-point and ADMM solvers do on infeasible problems without always certifying it), a *phase-one*
+problem decides: the same dynamics and constraint rows, every unit relaxed by a slack ``s >= 0``
+(:meth:`~pmht_opt.mstep.rows.Imposed.relaxed`), and the total slack as the only cost. The motion's own
+costs are left out on purpose: with them, a penalty on the slacks trades violations against the price
+of a manoeuvre, and a merely expensive manoeuvre would be reported as an impossible one. The slacks
+that stay positive belong to the constraints that cannot all be met, at the time steps where they
+clash. If none does the problem is feasible and the failure was the solver's own, a
+:class:`~pmht_opt.exceptions.SolverError` with its status.
+
+The phase-one problem is solved by Clarabel where it is installed (an interior-point solve of a
+second-order cone program), else by the failing backend.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 import solvers
-from pmht_opt.exceptions import ConfigError, InfeasibleError, PmhtOptError, SolverError
-from pmht_opt.mstep.platform import HorizonQP
-from pmht_opt.mstep.rows import PlatformRows
+from pmht_opt.exceptions import InfeasibleError, PmhtOptError, SolverError
+from pmht_opt.model import MotionModel
+from pmht_opt.mstep.formulation import QPLayout, dynamics_rows
+from pmht_opt.mstep.rows import PlatformRows, SlackOwner, assemble
 
-#: Penalty weight of the soft re-solve that locates infeasible constraints.
-DIAGNOSIS_WEIGHT = 1e6
-#: Slacks above this in the soft re-solve mark a constraint as a culprit.
+#: Slacks above this fraction of a constraint's own size (or absolute, for linear rows) mark a culprit.
 CULPRIT_SLACK = 1e-6
 
 
+def phase_one(
+    model: MotionModel,
+    x0: np.ndarray,
+    horizon: int,
+    rows: PlatformRows,
+    session_class: type[solvers.QPSession],
+) -> tuple[solvers.QPSolution, np.ndarray, list[SlackOwner]]:
+    """Solve the phase-one problem of the module docstring; return the answer, the slacks and their owners."""
+    layout = QPLayout(1, horizon)
+    t_idx = np.arange(1, horizon + 1)
+    col_map = layout.x(0, t_idx[:, None], np.arange(6)).ravel()
+    extra = assemble([i.relaxed(1.0) for i in rows.items], layout.n, col_map)
+    A_dyn, b_dyn = dynamics_rows(model, layout, x0[None, :])
+    width = layout.n + extra.n_slack
+    A_dyn = sp.csc_matrix(
+        (A_dyn.data, A_dyn.indices, np.concatenate([A_dyn.indptr, np.full(extra.n_slack, A_dyn.indptr[-1])])),
+        shape=(A_dyn.shape[0], width),
+    )
+    problem = solvers.QPProblem(
+        P=sp.csc_matrix((width, width)),
+        q=np.concatenate([np.zeros(layout.n), extra.slack_cost]),
+        A=sp.vstack([A_dyn, extra.A], format="csc"),
+        b=np.concatenate([b_dyn, extra.b]),
+        cones=(solvers.Zero(A_dyn.shape[0]), *extra.cones),
+    )
+    sol = session_class(problem).solve()
+    slacks = np.zeros(extra.n_slack) if sol.x is None else sol.x[layout.n :]
+    return sol, slacks, extra.slack_owner
+
+
 def diagnose(
-    probe: HorizonQP,
+    model: MotionModel,
+    x0: np.ndarray,
+    horizon: int,
     platform: int,
-    W: np.ndarray,
-    WZ: np.ndarray,
-    r: float,
     rows: PlatformRows,
     sol: solvers.QPSolution,
+    session_class: type[solvers.QPSession],
 ) -> PmhtOptError:
-    """The error for platform ``platform``'s failed M-step: which constraints conflict, where it can tell.
-
-    ``probe`` is a fresh full-horizon :class:`~pmht_opt.mstep.platform.HorizonQP` of the platform;
-    ``sol`` is the infeasible answer.
-    """
+    """The error for platform ``platform``'s failed M-step ``sol``: which constraints conflict, where it
+    can tell (module docstring)."""
     names = sorted({i.name for i in rows.items if not i.soft})
     where = f"platform {platform}: the constraints {', '.join(names)} cannot all be met"
-    plain: PmhtOptError
-    if sol.status in solvers.INFEASIBLE:
-        plain = InfeasibleError(
-            f"{sol.backend}: {where} (status {sol.raw_status}).", sol.backend, sol.raw_status
-        )
-    else:
-        plain = SolverError(
-            f"{sol.backend}: the M-step solve failed (platform {platform}) with status {sol.raw_status!r}; "
-            "its constraints can be met (a relaxed solve needs no slack), so the failure is the solver's.",
+    try:
+        probe, slacks, owners = phase_one(model, x0, horizon, rows, session_class)
+    except solvers.QPError:
+        probe = None
+    if probe is None or not probe.usable(True):
+        if sol.status in solvers.INFEASIBLE:
+            return InfeasibleError(
+                f"{sol.backend}: {where} (status {sol.raw_status}).", sol.backend, sol.raw_status
+            )
+        return SolverError(
+            f"{sol.backend}: the M-step solve failed (platform {platform}) with status {sol.raw_status!r}.",
             sol.backend,
             sol.raw_status,
         )
-    relaxed_rows = PlatformRows([i.relaxed(DIAGNOSIS_WEIGHT) for i in rows.items], ((-1,),))
-    try:
-        relaxed = probe.solve(W, WZ, r, relaxed_rows)
-    except (SolverError, ConfigError):
-        return plain
-    if not relaxed.usable(True) or relaxed.x is None or probe.extra is None:
-        return plain
     culprits: dict[str, list[tuple[int, str | None, float]]] = {}
-    for value, owner in zip(probe.slacks(relaxed.x), probe.extra.slack_owner, strict=True):
+    for value, owner in zip(slacks, owners, strict=True):
         if value > CULPRIT_SLACK:
             culprits.setdefault(owner.constraint, []).append((owner.time, owner.label, float(value)))
     if not culprits:
-        return plain
+        return SolverError(
+            f"{sol.backend}: the M-step solve failed (platform {platform}) with status {sol.raw_status!r}; "
+            "its constraints can all be met (a feasibility solve needs no slack), so the failure is the "
+            "solver's: try solver='clarabel'.",
+            sol.backend,
+            sol.raw_status,
+        )
     parts = []
     for name, hits in sorted(culprits.items(), key=lambda kv: -max(h[2] for h in kv[1])):
         times = sorted({h[0] for h in hits})

@@ -99,7 +99,7 @@ class QPMStep(MStep):
         )
 
     def _solve(self, data: MStepData) -> MStepOutput:
-        rows = self.rows.rows(data.ctx, data.active)
+        rows = self.rows.rows(data.ctx, data.active, data.strengths)
         # A platform with no weight and no constraint has the unique answer u = 0 (it coasts from its
         # start); first-order solvers struggle on this degenerate QP (its dual residual has no scale),
         # so the answer is written down instead of solved for.
@@ -144,14 +144,11 @@ class QPMStep(MStep):
 
     def _diagnose(self, m: int, data: MStepData, rows: PlatformRows, sol: solvers.QPSolution) -> PmhtOptError:
         """Why platform ``m``'s constrained solve failed (:mod:`pmht_opt.mstep.diagnosis`), asked of
-        Clarabel where it is installed (an interior-point solve of the relaxed problem is quick)."""
-        if "clarabel" in solvers.available_solvers():  # it takes this backend's rows, cones or not
+        Clarabel where it is installed: it takes this backend's rows, cones or polygons."""
+        session_class = self.session_class
+        if "clarabel" in solvers.available_solvers():
             session_class = solvers.get_session_class("clarabel")
-            options = CONSTRAINED_DEFAULTS["clarabel"]
-            probe = PlatformQP(self.model, self.x0[m], self.T, session_class, options, options).qp(self.T)
-        else:
-            probe = self._platform(m).qp(self.T)
-        return diagnose(probe, m, data.W[:, m], data.WZ[:, m], data.r, rows, sol)
+        return diagnose(self.model, self.x0[m], self.T, m, rows, sol, session_class)
 
     def close(self) -> None:
         if self._pool is not None:

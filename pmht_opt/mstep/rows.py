@@ -17,7 +17,7 @@ follow the same rule (:func:`soften_cvxpy`).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -74,7 +74,9 @@ class RowBuilder:
             out.append(Imposed(blk, con.name, con.soft, con.weight))
         return out
 
-    def rows(self, ctx: ConstraintContext | None, active: Sequence[int]) -> dict[int, PlatformRows]:
+    def rows(
+        self, ctx: ConstraintContext | None, active: Sequence[int], strengths: Sequence[float] = ()
+    ) -> dict[int, PlatformRows]:
         """The rows of the constraints ``active`` (indices) for the iterate in ``ctx``, per platform.
 
         A static constraint's rows are written at its first use and reused; a dynamic one's are
@@ -83,11 +85,12 @@ class RowBuilder:
         out: dict[int, PlatformRows] = {}
         if ctx is None or not active:
             return out
-        for i in active:
+        for j, i in enumerate(active):
             con = self.constraints[i]
             tag: tuple[int, ...]
             if con.dynamic:
-                items, tag = self._impose(con, ctx), (i, ctx.iteration)
+                strength = strengths[j] if strengths else 1.0
+                items, tag = self._impose(con, replace(ctx, strength=strength)), (i, ctx.iteration)
             else:
                 if i not in self._static:
                     self._static[i] = self._impose(con, ctx)
