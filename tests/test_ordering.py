@@ -157,7 +157,7 @@ def assert_ga_optimal(sc: Scenario, min_tour: int, best: float, ga_seed: int) ->
 @pytest.mark.parametrize(("n", "m", "min_tour", "seed"), SMALL)
 def test_ga_every_seed_finds_brute_force_optimum(n: int, m: int, min_tour: int, seed: int) -> None:
     """Every run is optimal, not only the best of several: the segment move, the route exchange and
-    restarts of a stalled population (ga module notes) get Kirk's GA out of its traps."""
+    restarts of a stalled population (the improved table) get Kirk's GA out of its traps."""
     sc = instance(n, m, seed)
     best, _ = brute_force(sc, min_tour)
     for ga_seed in GA_SEEDS:
@@ -184,7 +184,7 @@ def test_ga_property_optimal_on_small_instances(
     n: int, m: int, min_tour: int, seed: int, ga_seed: int
 ) -> None:
     """Derandomised: every run of the suite draws the same (checked) examples, so a rare miss on an
-    unseen one cannot make it flaky; the module notes of the GA give the measured miss rates."""
+    unseen one cannot make it flaky (misses are rare, not impossible: the GA is a heuristic)."""
     min_tour = max(1, min(min_tour, n // m))
     sc = instance(n, m, seed)
     best, _ = brute_force(sc, min_tour)
@@ -305,7 +305,8 @@ def test_gaparams_message_states_expectation() -> None:
     with pytest.raises(ConfigError, match=r"population: expected a positive multiple of 8, got 30\."):
         GAParams(population=30)
     assert GAParams() == GAParams(80, 5000, 1, "improved")
-    with pytest.raises(ConfigError, match=r"^operators: expected one of 'improved', 'kirk', got 'Kirk'\.$"):
+    expected = r"^operators: expected one of 'improved', 'kirk' or an OperatorSet, got 'Kirk'\.$"
+    with pytest.raises(ConfigError, match=expected):
         GAParams(operators="Kirk")
 
 

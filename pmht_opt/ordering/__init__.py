@@ -11,7 +11,7 @@ from collections.abc import Callable
 from typing import Any
 
 from pmht_opt.exceptions import ConfigError
-from pmht_opt.ordering.ga import GAParams, solve_ga_tsp
+from pmht_opt.ordering.ga import GAParams, NoRestart, OperatorSet, StallRestart, solve_ga_tsp
 from pmht_opt.ordering.ortools_ import solve_ortools
 from pmht_opt.ordering.tour import TourResult, check_routes, route_costs, tour_distance
 from pmht_opt.scenario import Scenario
@@ -32,7 +32,8 @@ def order_locales(scenario: Scenario, method: str = "ga", **options: Any) -> Tou
         near-optimal; needs the ``ortools`` extra).
     options
         Keyword options of the chosen method, e.g. ``seed``, ``iterations``, ``min_tour``, ``operators``
-        (``"improved"`` or the paper's ``"kirk"``) for the GA or ``time_limit``, ``min_tour`` for OR-Tools.
+        (``"improved"`` or the paper's ``"kirk"``), ``restart``, ``stop`` for the GA or ``time_limit``,
+        ``min_tour`` for OR-Tools.
 
     Raises
     ------
@@ -56,6 +57,9 @@ def order_locales(scenario: Scenario, method: str = "ga", **options: Any) -> Tou
 __all__ = [
     "METHODS",
     "GAParams",
+    "NoRestart",
+    "OperatorSet",
+    "StallRestart",
     "TourResult",
     "check_routes",
     "order_locales",
