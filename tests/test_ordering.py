@@ -454,7 +454,7 @@ def test_order_locales_dispatches() -> None:
 
 def test_order_locales_rejects_unknown_method_and_option() -> None:
     sc = instance(5, 2, 0)
-    with pytest.raises(ConfigError, match=r"method: expected one of ga, ortools, got 'lkh'"):
+    with pytest.raises(ConfigError, match=r"method: expected one of ga, ortools, pyvrp, got 'lkh'"):
         order_locales(sc, method="lkh")
     with pytest.raises(ConfigError, match=r"^time_limit: not an option of method 'ga'"):
         order_locales(sc, method="ga", time_limit=1.0)

@@ -1,7 +1,7 @@
-"""Locale orderings (tours) of the open multiple TSP: the GA-TSP baseline and OR-Tools routing.
+"""Locale orderings (tours) of the open multiple TSP: the GA-TSP baseline, OR-Tools and PyVRP.
 
 :func:`order_locales` is the entry point; every method is one function ``solve(scenario, **options) ->
-TourResult`` registered in :data:`METHODS`. OR-Tools is imported only when its method runs.
+TourResult`` registered in :data:`METHODS`. OR-Tools and PyVRP are imported only when their method runs.
 """
 
 from __future__ import annotations
@@ -13,11 +13,16 @@ from typing import Any
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.ordering.ga import GAParams, NoRestart, OperatorSet, StallRestart, solve_ga_tsp
 from pmht_opt.ordering.ortools_ import solve_ortools
+from pmht_opt.ordering.pyvrp_ import solve_pyvrp
 from pmht_opt.ordering.tour import TourResult, check_routes, route_costs, tour_distance
 from pmht_opt.scenario import Scenario
 
 #: Ordering methods by name.
-METHODS: dict[str, Callable[..., TourResult]] = {"ga": solve_ga_tsp, "ortools": solve_ortools}
+METHODS: dict[str, Callable[..., TourResult]] = {
+    "ga": solve_ga_tsp,
+    "ortools": solve_ortools,
+    "pyvrp": solve_pyvrp,
+}
 
 
 def order_locales(scenario: Scenario, method: str = "ga", **options: Any) -> TourResult:
@@ -28,12 +33,13 @@ def order_locales(scenario: Scenario, method: str = "ga", **options: Any) -> Tou
     scenario
         The scenario to solve.
     method
-        ``"ga"`` (:func:`solve_ga_tsp`, the paper's baseline) or ``"ortools"`` (:func:`solve_ortools`,
-        near-optimal; needs the ``ortools`` extra).
+        ``"ga"`` (:func:`solve_ga_tsp`, the paper's baseline), ``"ortools"`` (:func:`solve_ortools`,
+        near-optimal; needs the ``ortools`` extra) or ``"pyvrp"`` (:func:`solve_pyvrp`, near-optimal
+        and deterministic for a seed; needs the ``pyvrp`` extra).
     options
         Keyword options of the chosen method, e.g. ``seed``, ``iterations``, ``min_tour``, ``operators``
         (``"improved"`` or the paper's ``"kirk"``), ``restart``, ``stop`` for the GA or ``time_limit``,
-        ``min_tour`` for OR-Tools.
+        ``min_tour`` for OR-Tools, ``seed``, ``iterations``, ``no_improvement``, ``min_tour`` for PyVRP.
 
     Raises
     ------
@@ -66,5 +72,6 @@ __all__ = [
     "route_costs",
     "solve_ga_tsp",
     "solve_ortools",
+    "solve_pyvrp",
     "tour_distance",
 ]
