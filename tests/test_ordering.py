@@ -384,6 +384,26 @@ def test_ortools_history_and_beats_ga_on_scenario_c() -> None:
     assert res.total_distance < ga.total_distance
 
 
+def test_ortools_default_is_deterministic() -> None:
+    """Without a wall-clock limit the search stops on a solution count: same input, same tour."""
+    pytest.importorskip("ortools")
+    sc = paper_scenario("C", seed=1)
+    runs = [solve_ortools(sc, solution_limit=80) for _ in range(2)]
+    runs += [order_locales(sc, "ortools", solution_limit=80)]
+    for other in runs[1:]:
+        assert [r.tolist() for r in other.routes] == [r.tolist() for r in runs[0].routes]
+        np.testing.assert_array_equal(other.history, runs[0].history)
+        assert other.extras["objective_scaled"] == runs[0].extras["objective_scaled"]
+    assert runs[0].extras["deterministic"] is True
+    assert_valid(runs[0], sc)
+    small = instance(20, 3, 7)
+    a, b = solve_ortools(small), solve_ortools(small)
+    assert a.extras["solution_limit"] == 300 and a.extras["time_limit"] is None
+    assert [r.tolist() for r in a.routes] == [r.tolist() for r in b.routes]
+    timed = solve_ortools(small, time_limit=0.2)
+    assert timed.extras["deterministic"] is False and timed.extras["solution_limit"] is None
+
+
 @pytest.mark.parametrize(("n", "m", "min_tour"), [(12, 4, 3), (9, 3, 3), (20, 4, 5), (100, 4, 25)])
 def test_ortools_tight_min_tour(n: int, m: int, min_tour: int) -> None:
     """N = M min_tour leaves no slack. A hard bound made the first-solution heuristics time out and an
