@@ -52,8 +52,11 @@ def _cut_sets(N: int, M: int, min_tour: int) -> tuple[np.ndarray, np.ndarray]:
     return heads, ends
 
 
-def _costs(scenario: Scenario, perms: np.ndarray, heads: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """``(P, B)`` cost of every permutation split by every cut set, from prefix sums of chain legs."""
+def _costs(
+    scenario: Scenario, perms: np.ndarray, heads: np.ndarray, ends: np.ndarray, closed: bool = False
+) -> np.ndarray:
+    """``(P, B)`` cost of every permutation split by every cut set, from prefix sums of chain legs
+    (and, closed, each run's leg from its last locale back to its start)."""
     z, s = scenario.locales, scenario.start_positions
     legs = np.linalg.norm(np.diff(z[perms], axis=1), axis=2)  # (P, N-1)
     prefix = np.concatenate([np.zeros((perms.shape[0], 1)), np.cumsum(legs, axis=1)], axis=1)  # (P, N)
@@ -63,21 +66,27 @@ def _costs(scenario: Scenario, perms: np.ndarray, heads: np.ndarray, ends: np.nd
         for m, (head, end) in enumerate(zip(run_heads, run_ends, strict=True)):
             # Internal length of a run head..end-1 is prefix[end - 1] - prefix[head].
             total[:, b] += prefix[:, end - 1] - prefix[:, head] + entry[m, perms[:, head]]
+            if closed:
+                total[:, b] += entry[m, perms[:, end - 1]]
     return total
 
 
-def brute_force(scenario: Scenario, min_tour: int = 1) -> tuple[float, list[np.ndarray]]:
-    """Exhaustive optimum of the open mTSP, vectorised over permutations x break sets."""
+def brute_force(
+    scenario: Scenario, min_tour: int = 1, closed: bool = False
+) -> tuple[float, list[np.ndarray]]:
+    """Exhaustive optimum of the mTSP (open, or closed: back to each start), vectorised over
+    permutations x break sets."""
     N, M = scenario.n_locales, scenario.n_platforms
     perms = np.array(list(itertools.permutations(range(N))), dtype=np.intp)
     heads, ends = _cut_sets(N, M, min_tour)
-    total = _costs(scenario, perms, heads, ends)
+    total = _costs(scenario, perms, heads, ends, closed)
     p, b = np.unravel_index(int(np.argmin(total)), total.shape)
     return float(total[p, b]), [perms[p, heads[b, m] : ends[b, m]] for m in range(M)]
 
 
 def assert_valid(result: TourResult, scenario: Scenario, min_tour: int = 1) -> None:
-    """Partition, min_tour and distance, checked here and through TourResult.validate."""
+    """Partition, min_tour and distance (with the legs home if the result is closed), checked here and
+    through TourResult.validate."""
     assert result.n_platforms == scenario.n_platforms
     allidx = np.sort(np.concatenate(result.routes))
     np.testing.assert_array_equal(allidx, np.arange(scenario.n_locales))
@@ -88,6 +97,8 @@ def assert_valid(result: TourResult, scenario: Scenario, min_tour: int = 1) -> N
         for n in route:
             expected += float(np.hypot(*(scenario.locales[n] - here)))
             here = scenario.locales[n]
+        if result.closed and len(route):
+            expected += float(np.hypot(*(scenario.start_positions[m] - here)))
     assert result.total_distance == pytest.approx(expected, rel=1e-12, abs=1e-12)
     result.validate(scenario, min_tour=min_tour)
 

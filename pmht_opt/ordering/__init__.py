@@ -1,4 +1,4 @@
-"""Locale orderings (tours) of the open multiple TSP: the GA-TSP baseline, OR-Tools and PyVRP.
+"""Locale orderings (tours) of the multiple TSP from per-platform starts: GA-TSP, OR-Tools and PyVRP.
 
 :func:`order_locales` is the entry point; every method is one function ``solve(scenario, **options) ->
 TourResult`` registered in :data:`METHODS`. OR-Tools and PyVRP are imported only when their method runs.
@@ -14,7 +14,7 @@ from pmht_opt.exceptions import ConfigError
 from pmht_opt.ordering.ga import GAParams, NoRestart, OperatorSet, StallRestart, solve_ga_tsp
 from pmht_opt.ordering.ortools_ import solve_ortools
 from pmht_opt.ordering.pyvrp_ import solve_pyvrp
-from pmht_opt.ordering.tour import TourResult, check_routes, route_costs, tour_distance
+from pmht_opt.ordering.tour import TourResult, check_routes, route_costs, route_legs, tour_distance
 from pmht_opt.scenario import Scenario
 
 #: Ordering methods by name.
@@ -26,7 +26,8 @@ METHODS: dict[str, Callable[..., TourResult]] = {
 
 
 def order_locales(scenario: Scenario, method: str = "ga", **options: Any) -> TourResult:
-    """Order the locales into one open route per platform.
+    """Order the locales into one route per platform: open (the paper's problem) or, with
+    ``closed=True``, back to each platform's start (return to base; every method takes ``closed``).
 
     Parameters
     ----------
@@ -70,6 +71,7 @@ __all__ = [
     "check_routes",
     "order_locales",
     "route_costs",
+    "route_legs",
     "solve_ga_tsp",
     "solve_ortools",
     "solve_pyvrp",

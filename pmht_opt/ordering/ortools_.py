@@ -2,7 +2,9 @@
 
 The open multiple TSP with a start per platform is posed as a vehicle routing problem on ``N + M + 1``
 nodes: the locales ``0 .. N-1``, one start node ``N + m`` per platform (vehicle ``m`` starts there) and a
-single shared end node ``N + M`` reached at zero cost from anywhere, which makes the routes open. Arcs into
+single shared end node ``N + M`` reached at zero cost from anywhere, which makes the routes open. Closed
+routes (return to base) drop the end node: vehicle ``m`` ends at its own start node, and the arc from a
+locale to it costs the distance home. Arcs into
 a start node never occur in a solution (OR-Tools uses start nodes only as starts) and get the largest
 cost. Arc costs are integers: distances times a scale chosen so the largest arc is :data:`COST_SCALE_MAX`,
 i.e. a relative rounding error of about 1e-9 per arc. The reported distance is recomputed in floating
@@ -30,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.exceptions import ConfigError, MissingDependencyError, SolverError
-from pmht_opt.ordering.tour import TourResult, _check_int, check_min_tour, tour_distance
+from pmht_opt.ordering.tour import TourResult, _check_closed, _check_int, check_min_tour, tour_distance
 from pmht_opt.scenario import Scenario
 
 #: Integer cost of the longest arc; leaves int64 headroom for OR-Tools' sums and GLS penalties.
@@ -90,15 +92,18 @@ def _choice(name: str, value: Any, allowed: tuple[str, ...]) -> str:
     return key
 
 
-def _shortfall_penalty(n_locales: int) -> int:
-    """Price of one locale missing from a route's ``min_tour``: more than any tour (N arcs) costs."""
-    return (n_locales + 1) * COST_SCALE_MAX
+def _shortfall_penalty(n_locales: int, n_platforms: int, closed: bool) -> int:
+    """Price of one locale missing from a route's ``min_tour``: more than any tour costs (``N`` arcs,
+    ``N + M`` if closed, each at most :data:`COST_SCALE_MAX`)."""
+    return (n_locales + 1 + (n_platforms if closed else 0)) * COST_SCALE_MAX
 
 
-def arc_costs(scenario: Scenario) -> tuple[np.ndarray, float]:
-    """Integer arc-cost matrix ``(N+M+1, N+M+1)`` of the routing model and its scale (cost per unit).
+def arc_costs(scenario: Scenario, closed: bool = False) -> tuple[np.ndarray, float]:
+    """Integer arc-cost matrix of the routing model and its scale (cost per unit).
 
-    Rows are tails and columns heads: locales, then start nodes, then the end node.
+    Rows are tails and columns heads: locales, then start nodes, then (open routes only) the end node,
+    so the matrix is ``(N+M+1, N+M+1)`` for open routes and ``(N+M, N+M)`` for closed ones, where each
+    vehicle ends at its own start node and a locale-to-start arc is the leg home.
     """
     z, s = scenario.locales, scenario.start_positions
     N, M = z.shape[0], s.shape[0]
@@ -106,12 +111,16 @@ def arc_costs(scenario: Scenario) -> tuple[np.ndarray, float]:
     dist = np.sqrt(((pts[:, None, :] - pts[None, :, :]) ** 2).sum(-1))
     longest = float(dist[:, :N].max()) if N else 0.0
     scale = COST_SCALE_MAX / longest if longest > 0 else 1.0
-    size = N + M + 1
+    size = N + M + (0 if closed else 1)
     cost = np.zeros((size, size), dtype=np.int64)
     cost[: N + M, :N] = np.rint(dist[:, :N] * scale).astype(np.int64)
-    # Into a start: never used by a solution, priced out in case a heuristic considers it.
+    # Into a start: never used by an open solution (nor, closed, from another start), priced out in
+    # case a heuristic considers it.
     cost[:, N : N + M] = COST_SCALE_MAX * 4
-    cost[:, N + M] = 0
+    if closed:
+        cost[:N, N : N + M] = np.rint(dist[:N, N:] * scale).astype(np.int64)
+    else:
+        cost[:, N + M] = 0
     np.fill_diagonal(cost, 0)
     return cost, scale
 
@@ -133,8 +142,9 @@ def solve_ortools(
     metaheuristic: str = "GUIDED_LOCAL_SEARCH",
     solution_limit: int | None = None,
     log_search: bool = False,
+    closed: bool = False,
 ) -> TourResult:
-    """Order the locales with OR-Tools routing: open routes from per-platform starts, minimum distance.
+    """Order the locales with OR-Tools routing: routes from per-platform starts, minimum distance.
 
     OR-Tools routing has no seed and searches on one thread, so without a wall-clock limit the same
     input gives the same tour. The default is that deterministic mode: the search stops after
@@ -160,6 +170,8 @@ def solve_ortools(
         no limit with it.
     log_search
         Let OR-Tools log its search to stderr.
+    closed
+        Return to base: each vehicle ends at its own start and the cost includes that leg.
 
     Returns
     -------
@@ -185,6 +197,7 @@ def solve_ortools(
         solution_limit = DEFAULT_SOLUTION_LIMIT
     if not isinstance(log_search, bool):
         raise ConfigError(f"log_search: expected True or False, got {log_search!r}.")
+    closed = _check_closed(closed)
     try:
         pywrapcp, enums = _import_ortools()
     except _LoadError:
@@ -192,10 +205,10 @@ def solve_ortools(
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(1, mp_context=ctx) as pool:
             job = pool.submit(
-                solve_ortools, scenario, limit, min_tour, first, meta, solution_limit, log_search
+                solve_ortools, scenario, limit, min_tour, first, meta, solution_limit, log_search, closed
             )
             return job.result()
-    settings = _Settings(limit, solution_limit, min_tour, first, meta, log_search)
+    settings = _Settings(limit, solution_limit, min_tour, first, meta, log_search, closed)
     return _solve(scenario, settings, pywrapcp, enums)
 
 
@@ -209,6 +222,7 @@ class _Settings:
     first_solution: str
     metaheuristic: str
     log_search: bool
+    closed: bool
 
     def limits(self) -> str:
         """The limits in words, for error messages."""
@@ -217,11 +231,13 @@ class _Settings:
         return " and ".join(parts)
 
 
-def _model(scenario: Scenario, min_tour: int, pywrapcp: Any) -> tuple[Any, Any, float]:
+def _model(scenario: Scenario, settings: _Settings, pywrapcp: Any) -> tuple[Any, Any, float]:
     """The routing model (manager, model) and the cost scale."""
     N, M = scenario.n_locales, scenario.n_platforms
-    cost, scale = arc_costs(scenario)
-    manager = pywrapcp.RoutingIndexManager(N + M + 1, M, [N + m for m in range(M)], [N + M] * M)
+    cost, scale = arc_costs(scenario, settings.closed)
+    starts = [N + m for m in range(M)]
+    ends = starts if settings.closed else [N + M] * M
+    manager = pywrapcp.RoutingIndexManager(cost.shape[0], M, starts, ends)
     routing = pywrapcp.RoutingModel(manager)
     transit = routing.RegisterTransitMatrix(cost.tolist())
     routing.SetArcCostEvaluatorOfAllVehicles(transit)
@@ -231,8 +247,9 @@ def _model(scenario: Scenario, min_tour: int, pywrapcp: Any) -> tuple[Any, Any, 
     # the answer is checked afterwards.
     routing.AddConstantDimension(1, N + 1, True, "count")
     count = routing.GetDimensionOrDie("count")
+    penalty = _shortfall_penalty(N, M, settings.closed)
     for v in range(M):
-        count.SetCumulVarSoftLowerBound(routing.End(v), min_tour + 1, _shortfall_penalty(N))
+        count.SetCumulVarSoftLowerBound(routing.End(v), settings.min_tour + 1, penalty)
         # Otherwise OR-Tools skips the costs of an empty route, and with them its shortfall.
         routing.SetVehicleUsedWhenEmpty(True, v)
     return manager, routing, scale
@@ -265,8 +282,8 @@ def _routes(solution: Any, manager: Any, routing: Any, M: int) -> list[np.ndarra
 def _solve(scenario: Scenario, settings: _Settings, pywrapcp: Any, enums: Any) -> TourResult:
     N, M = scenario.n_locales, scenario.n_platforms
     t0 = time.perf_counter()
-    manager, routing, scale = _model(scenario, settings.min_tour, pywrapcp)
-    penalty = _shortfall_penalty(N)
+    manager, routing, scale = _model(scenario, settings, pywrapcp)
+    penalty = _shortfall_penalty(N, M, settings.closed)
     improvements: list[float] = []
 
     def record() -> None:
@@ -297,7 +314,7 @@ def _solve(scenario: Scenario, settings: _Settings, pywrapcp: Any, enums: Any) -
         )
     return TourResult(
         routes=routes,
-        total_distance=tour_distance(scenario, routes),
+        total_distance=tour_distance(scenario, routes, settings.closed),
         history=np.array(improvements if improvements else [solution.ObjectiveValue() / scale]),
         wall_time=wall,
         method="ortools",
@@ -313,4 +330,5 @@ def _solve(scenario: Scenario, settings: _Settings, pywrapcp: Any, enums: Any) -
             "objective_scaled": int(solution.ObjectiveValue()),
             "cost_scale": scale,
         },
+        closed=settings.closed,
     )

@@ -29,6 +29,11 @@ Arc costs are integers: distances times a scale chosen so the longest arc is at 
 :data:`COST_SCALE_MAX` (less on large instances, so the costs keep headroom below the forbidden price
 in int64). The reported distance is recomputed in floating point from the routes.
 
+Closed routes (return to base) have no end depot: vehicle ``m`` ends at its own start, a route end
+leads there at no cost, and the leg home is the arc from the last locale into the route end. That arc
+depends on the vehicle, so each platform gets its own routing profile (its own distance matrix) in
+which every locale-to-route-end arc costs its distance home; the route ends stay interchangeable.
+
 The search stops after ``iterations`` iterations or ``no_improvement`` iterations without a better
 solution, never on wall time, so a seed fixes the answer.
 """
@@ -42,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.exceptions import ConfigError, MissingDependencyError, SolverError
-from pmht_opt.ordering.tour import TourResult, _check_int, check_min_tour, tour_distance
+from pmht_opt.ordering.tour import TourResult, _check_closed, _check_int, check_min_tour, tour_distance
 from pmht_opt.scenario import Scenario
 
 #: Integer cost of the longest arc at most (relative rounding of about 5e-9 per arc).
@@ -76,11 +81,11 @@ def cost_scale(scenario: Scenario) -> float:
     return top / longest if longest > 0 else 1.0
 
 
-def problem_data(scenario: Scenario, min_tour: int = 1) -> tuple[Any, float, int]:
-    """PyVRP ``ProblemData`` of the open multiple TSP, its cost scale and the cost of one missing locale.
+def problem_data(scenario: Scenario, min_tour: int = 1, closed: bool = False) -> tuple[Any, float, int]:
+    """PyVRP ``ProblemData`` of the multiple TSP, its cost scale and the cost of one missing locale.
 
-    Locations: starts ``0 .. M-1``, the end depot ``M``, locales ``M+1 .. M+N``, route ends after them.
-    Depots are the starts and then the end depot; clients are the locales and then the route ends.
+    Locations: the starts ``0 .. M-1``, the end depot ``M`` (open routes only), the locales, then the
+    route ends. Depots are the starts (and the end depot); clients are the locales, then the route ends.
     """
     pyvrp = _import_pyvrp()
     z, s = scenario.locales, scenario.start_positions
@@ -88,14 +93,24 @@ def problem_data(scenario: Scenario, min_tour: int = 1) -> tuple[Any, float, int
     scale = cost_scale(scenario)
     pts = np.vstack([z, s])
     dist = np.rint(np.sqrt(((pts[:, None, :] - pts[None, :, :]) ** 2).sum(-1)) * scale).astype(np.int64)
-    end, loc, ends = M, np.arange(M + 1, M + 1 + N), np.arange(M + 1 + N, M + 1 + N + M)
-    size = M + 1 + N + M
+    n_depots = M if closed else M + 1
+    loc = np.arange(n_depots, n_depots + N)
+    ends = np.arange(n_depots + N, n_depots + N + M)
+    size = n_depots + N + M
     d = np.full((size, size), FORBIDDEN, dtype=np.int64)
     d[np.ix_(loc, loc)] = dist[:N, :N]
     d[:M, loc] = dist[N:, :N]
     d[np.ix_(loc, ends)] = 0
-    d[ends, end] = 0
+    d[np.ix_(ends, np.arange(M) if closed else [M])] = 0
     np.fill_diagonal(d, 0)
+    if closed:  # one profile per platform: its own leg home from every locale into a route end
+        distances = []
+        for m in range(M):
+            dm = d.copy()
+            dm[np.ix_(loc, ends)] = dist[:N, N + m, None]
+            distances.append(dm)
+    else:
+        distances = [d]
     timed = min_tour > 1
     t = np.zeros_like(d)
     if timed:  # one unit to enter a locale (see the module notes)
@@ -103,16 +118,25 @@ def problem_data(scenario: Scenario, min_tour: int = 1) -> tuple[Any, float, int
         t[:M, loc] = 1
         np.fill_diagonal(t, 0)
     penalty = int((N + M + 1) * np.ceil(dist.max())) + 1
-    xy = np.vstack([s, s[:1], z, s])
+    xy = np.vstack([s, s[: n_depots - M], z, s])
     locations = [pyvrp.Location(float(x), float(y)) for x, y in xy]
-    depots = [pyvrp.Depot(m) for m in range(M + 1)]
+    depots = [pyvrp.Depot(i) for i in range(n_depots)]
     clients = [pyvrp.Client(int(i)) for i in loc]
     clients += [pyvrp.Client(int(i), tw_early=min_tour if timed else 0) for i in ends]
     vehicle = {"unit_duration_cost": penalty, "start_late": 0} if timed else {}
     types = [
-        pyvrp.VehicleType(1, start_depot=m, end_depot=end, name=f"platform {m}", **vehicle) for m in range(M)
+        pyvrp.VehicleType(
+            1,
+            start_depot=m,
+            end_depot=m if closed else M,
+            profile=m if closed else 0,
+            name=f"platform {m}",
+            **vehicle,
+        )
+        for m in range(M)
     ]
-    return pyvrp.ProblemData(locations, clients, depots, types, [d], [t]), scale, penalty
+    data = pyvrp.ProblemData(locations, clients, depots, types, distances, [t] * len(distances))
+    return data, scale, penalty
 
 
 def _history(stats: Any, scale: float, offset: int, penalty: int) -> list[float]:
@@ -141,8 +165,9 @@ def solve_pyvrp(
     iterations: int = 5000,
     no_improvement: int | None = None,
     min_tour: int = 1,
+    closed: bool = False,
 ) -> TourResult:
-    """Order the locales with PyVRP: open routes from per-platform starts, minimum total distance.
+    """Order the locales with PyVRP: routes from per-platform starts, minimum total distance.
 
     Parameters
     ----------
@@ -157,6 +182,8 @@ def solve_pyvrp(
         Stop earlier after this many iterations without a better solution (None: never).
     min_tour
         Minimum locales per route, ``>= 1`` with ``min_tour * M <= N``.
+    closed
+        Return to base: each vehicle ends at its own start and the cost includes that leg.
 
     Returns
     -------
@@ -176,13 +203,14 @@ def solve_pyvrp(
     if no_improvement is not None:
         no_improvement = _check_int("no_improvement", no_improvement, 1)
     min_tour = check_min_tour(scenario, min_tour)
+    closed = _check_closed(closed)
     _import_pyvrp()
     from pyvrp import solve
     from pyvrp.stop import MaxIterations, MultipleCriteria, NoImprovement, StoppingCriterion
 
     N, M = scenario.n_locales, scenario.n_platforms
     t0 = time.perf_counter()
-    data, scale, penalty = problem_data(scenario, min_tour)
+    data, scale, penalty = problem_data(scenario, min_tour, closed)
     criteria: list[StoppingCriterion] = [MaxIterations(iterations)]
     if no_improvement is not None:
         criteria.append(NoImprovement(no_improvement))
@@ -201,7 +229,7 @@ def solve_pyvrp(
         )
     offset = penalty * N if min_tour > 1 else 0
     history = _history(result.stats, scale, offset, penalty)
-    total = tour_distance(scenario, routes)
+    total = tour_distance(scenario, routes, closed)
     return TourResult(
         routes=routes,
         total_distance=total,
@@ -218,4 +246,5 @@ def solve_pyvrp(
             "objective_scaled": int(result.best.distance()),
             "cost_scale": scale,
         },
+        closed=closed,
     )

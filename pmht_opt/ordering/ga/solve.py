@@ -34,7 +34,7 @@ from pmht_opt.exceptions import ConfigError
 from pmht_opt.ordering.ga.encoding import PopulationCost, heads_to_routes, random_heads, random_population
 from pmht_opt.ordering.ga.operators import OPERATOR_SETS, Breaks, Layout, MovePlan, OperatorSet
 from pmht_opt.ordering.ga.restart import NoRestart, RestartPolicy, StallRestart
-from pmht_opt.ordering.tour import TourResult, _check_int, check_min_tour, tour_distance
+from pmht_opt.ordering.tour import TourResult, _check_closed, _check_int, check_min_tour, tour_distance
 from pmht_opt.scenario import Scenario
 from pmht_opt.stopping import AnyOf, MaxIterations, Progress, StoppingCriterion, iteration_limit
 
@@ -60,6 +60,8 @@ class GAParams:
         A restart policy; None: :class:`NoRestart` with ``"kirk"``, ``StallRestart(5.0)`` otherwise.
     stop
         A stopping criterion, combined with ``iterations`` (whichever comes first).
+    closed
+        Return to base: each route's leg back to its platform's start is part of the cost.
     """
 
     population: int = 80
@@ -68,8 +70,10 @@ class GAParams:
     operators: str | OperatorSet = "improved"
     restart: RestartPolicy | None = None
     stop: StoppingCriterion | None = None
+    closed: bool = False
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "closed", _check_closed(self.closed))
         group = self.operator_set.group
         pop = self.population
         if isinstance(pop, bool) or not isinstance(pop, numbers.Integral) or pop <= 0 or pop % group:
@@ -137,8 +141,9 @@ def solve_ga_tsp(
     operators: str | OperatorSet = "improved",
     restart: RestartPolicy | None = None,
     stop: StoppingCriterion | None = None,
+    closed: bool = False,
 ) -> TourResult:
-    """Order the locales with the Kirk-style GA for the open multiple TSP.
+    """Order the locales with the Kirk-style GA for the multiple TSP from per-platform starts.
 
     Parameters
     ----------
@@ -167,6 +172,9 @@ def solve_ga_tsp(
         Stopping criterion from :mod:`pmht_opt.stopping` (scored by the best cost), e.g.
         ``NoImprovement(500)``; the run ends at ``iterations`` or ``stop``, whichever comes first.
         Avoid ``TimeBudget`` where results must be reproducible.
+    closed
+        Return to base: each platform flies back to its start and the cost includes that leg (the
+        moves are the same; only the cost changes). Default: open routes, as in the paper.
 
     Returns
     -------
@@ -175,7 +183,7 @@ def solve_ga_tsp(
         ``extras["restarts"]`` counts the restarts of a stalled population, ``extras["iterations"]``
         the generations run and ``extras["operators"]`` names the table.
     """
-    params = GAParams(population, iterations, min_tour, operators, restart, stop)
+    params = GAParams(population, iterations, min_tour, operators, restart, stop, closed)
     check_min_tour(scenario, params.min_tour)
     if callback is not None and not callable(callback):
         raise ConfigError(f"callback: expected a callable(iteration, best_cost) or None, got {callback!r}.")
@@ -187,7 +195,7 @@ def solve_ga_tsp(
     routes = heads_to_routes(run.best_perm, run.best_heads)
     return TourResult(
         routes=routes,
-        total_distance=tour_distance(scenario, routes),
+        total_distance=tour_distance(scenario, routes, params.closed),
         history=history,
         wall_time=wall,
         method="ga",
@@ -199,6 +207,7 @@ def solve_ga_tsp(
             "restarts": run.restarts,
             "operators": params.operator_set.name,
         },
+        closed=params.closed,
     )
 
 
@@ -228,7 +237,7 @@ class _Evolution:
         P, group = params.population, ops.group
         self.layout = Layout(N, M, P // group, params.min_tour)
         self.rng, self.P = rng, P
-        self.cost = PopulationCost(scenario, P)
+        self.cost = PopulationCost(scenario, P, params.closed)
         self.patience = params.restart_policy.patience(N, self.layout.G)
         moves = ops.moves
         # Per distinct move, the slots it fills (the first one computed, the others copied).
