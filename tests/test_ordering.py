@@ -52,8 +52,11 @@ def _cut_sets(N: int, M: int, min_tour: int) -> tuple[np.ndarray, np.ndarray]:
     return heads, ends
 
 
-def _costs(scenario: Scenario, perms: np.ndarray, heads: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """``(P, B)`` cost of every permutation split by every cut set, from prefix sums of chain legs."""
+def _costs(
+    scenario: Scenario, perms: np.ndarray, heads: np.ndarray, ends: np.ndarray, closed: bool = False
+) -> np.ndarray:
+    """``(P, B)`` cost of every permutation split by every cut set, from prefix sums of chain legs
+    (and, closed, each run's leg from its last locale back to its start)."""
     z, s = scenario.locales, scenario.start_positions
     legs = np.linalg.norm(np.diff(z[perms], axis=1), axis=2)  # (P, N-1)
     prefix = np.concatenate([np.zeros((perms.shape[0], 1)), np.cumsum(legs, axis=1)], axis=1)  # (P, N)
@@ -63,21 +66,27 @@ def _costs(scenario: Scenario, perms: np.ndarray, heads: np.ndarray, ends: np.nd
         for m, (head, end) in enumerate(zip(run_heads, run_ends, strict=True)):
             # Internal length of a run head..end-1 is prefix[end - 1] - prefix[head].
             total[:, b] += prefix[:, end - 1] - prefix[:, head] + entry[m, perms[:, head]]
+            if closed:
+                total[:, b] += entry[m, perms[:, end - 1]]
     return total
 
 
-def brute_force(scenario: Scenario, min_tour: int = 1) -> tuple[float, list[np.ndarray]]:
-    """Exhaustive optimum of the open mTSP, vectorised over permutations x break sets."""
+def brute_force(
+    scenario: Scenario, min_tour: int = 1, closed: bool = False
+) -> tuple[float, list[np.ndarray]]:
+    """Exhaustive optimum of the mTSP (open, or closed: back to each start), vectorised over
+    permutations x break sets."""
     N, M = scenario.n_locales, scenario.n_platforms
     perms = np.array(list(itertools.permutations(range(N))), dtype=np.intp)
     heads, ends = _cut_sets(N, M, min_tour)
-    total = _costs(scenario, perms, heads, ends)
+    total = _costs(scenario, perms, heads, ends, closed)
     p, b = np.unravel_index(int(np.argmin(total)), total.shape)
     return float(total[p, b]), [perms[p, heads[b, m] : ends[b, m]] for m in range(M)]
 
 
 def assert_valid(result: TourResult, scenario: Scenario, min_tour: int = 1) -> None:
-    """Partition, min_tour and distance, checked here and through TourResult.validate."""
+    """Partition, min_tour and distance (with the legs home if the result is closed), checked here and
+    through TourResult.validate."""
     assert result.n_platforms == scenario.n_platforms
     allidx = np.sort(np.concatenate(result.routes))
     np.testing.assert_array_equal(allidx, np.arange(scenario.n_locales))
@@ -88,6 +97,8 @@ def assert_valid(result: TourResult, scenario: Scenario, min_tour: int = 1) -> N
         for n in route:
             expected += float(np.hypot(*(scenario.locales[n] - here)))
             here = scenario.locales[n]
+        if result.closed and len(route):
+            expected += float(np.hypot(*(scenario.start_positions[m] - here)))
     assert result.total_distance == pytest.approx(expected, rel=1e-12, abs=1e-12)
     result.validate(scenario, min_tour=min_tour)
 
@@ -157,7 +168,7 @@ def assert_ga_optimal(sc: Scenario, min_tour: int, best: float, ga_seed: int) ->
 @pytest.mark.parametrize(("n", "m", "min_tour", "seed"), SMALL)
 def test_ga_every_seed_finds_brute_force_optimum(n: int, m: int, min_tour: int, seed: int) -> None:
     """Every run is optimal, not only the best of several: the segment move, the route exchange and
-    restarts of a stalled population (ga module notes) get Kirk's GA out of its traps."""
+    restarts of a stalled population (the improved table) get Kirk's GA out of its traps."""
     sc = instance(n, m, seed)
     best, _ = brute_force(sc, min_tour)
     for ga_seed in GA_SEEDS:
@@ -184,7 +195,7 @@ def test_ga_property_optimal_on_small_instances(
     n: int, m: int, min_tour: int, seed: int, ga_seed: int
 ) -> None:
     """Derandomised: every run of the suite draws the same (checked) examples, so a rare miss on an
-    unseen one cannot make it flaky; the module notes of the GA give the measured miss rates."""
+    unseen one cannot make it flaky (misses are rare, not impossible: the GA is a heuristic)."""
     min_tour = max(1, min(min_tour, n // m))
     sc = instance(n, m, seed)
     best, _ = brute_force(sc, min_tour)
@@ -305,7 +316,8 @@ def test_gaparams_message_states_expectation() -> None:
     with pytest.raises(ConfigError, match=r"population: expected a positive multiple of 8, got 30\."):
         GAParams(population=30)
     assert GAParams() == GAParams(80, 5000, 1, "improved")
-    with pytest.raises(ConfigError, match=r"^operators: expected one of 'improved', 'kirk', got 'Kirk'\.$"):
+    expected = r"^operators: expected one of 'improved', 'kirk' or an OperatorSet, got 'Kirk'\.$"
+    with pytest.raises(ConfigError, match=expected):
         GAParams(operators="Kirk")
 
 
@@ -383,6 +395,26 @@ def test_ortools_history_and_beats_ga_on_scenario_c() -> None:
     assert res.total_distance < ga.total_distance
 
 
+def test_ortools_default_is_deterministic() -> None:
+    """Without a wall-clock limit the search stops on a solution count: same input, same tour."""
+    pytest.importorskip("ortools")
+    sc = paper_scenario("C", seed=1)
+    runs = [solve_ortools(sc, solution_limit=80) for _ in range(2)]
+    runs += [order_locales(sc, "ortools", solution_limit=80)]
+    for other in runs[1:]:
+        assert [r.tolist() for r in other.routes] == [r.tolist() for r in runs[0].routes]
+        np.testing.assert_array_equal(other.history, runs[0].history)
+        assert other.extras["objective_scaled"] == runs[0].extras["objective_scaled"]
+    assert runs[0].extras["deterministic"] is True
+    assert_valid(runs[0], sc)
+    small = instance(20, 3, 7)
+    a, b = solve_ortools(small), solve_ortools(small)
+    assert a.extras["solution_limit"] == 300 and a.extras["time_limit"] is None
+    assert [r.tolist() for r in a.routes] == [r.tolist() for r in b.routes]
+    timed = solve_ortools(small, time_limit=0.2)
+    assert timed.extras["deterministic"] is False and timed.extras["solution_limit"] is None
+
+
 @pytest.mark.parametrize(("n", "m", "min_tour"), [(12, 4, 3), (9, 3, 3), (20, 4, 5), (100, 4, 25)])
 def test_ortools_tight_min_tour(n: int, m: int, min_tour: int) -> None:
     """N = M min_tour leaves no slack. A hard bound made the first-solution heuristics time out and an
@@ -453,7 +485,7 @@ def test_order_locales_dispatches() -> None:
 
 def test_order_locales_rejects_unknown_method_and_option() -> None:
     sc = instance(5, 2, 0)
-    with pytest.raises(ConfigError, match=r"method: expected one of ga, ortools, got 'lkh'"):
+    with pytest.raises(ConfigError, match=r"method: expected one of ga, ortools, pyvrp, got 'lkh'"):
         order_locales(sc, method="lkh")
     with pytest.raises(ConfigError, match=r"^time_limit: not an option of method 'ga'"):
         order_locales(sc, method="ga", time_limit=1.0)

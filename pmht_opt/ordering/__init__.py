@@ -1,7 +1,7 @@
-"""Locale orderings (tours) of the open multiple TSP: the GA-TSP baseline and OR-Tools routing.
+"""Locale orderings (tours) of the multiple TSP from per-platform starts: GA-TSP, OR-Tools and PyVRP.
 
 :func:`order_locales` is the entry point; every method is one function ``solve(scenario, **options) ->
-TourResult`` registered in :data:`METHODS`. OR-Tools is imported only when its method runs.
+TourResult`` registered in :data:`METHODS`. OR-Tools and PyVRP are imported only when their method runs.
 """
 
 from __future__ import annotations
@@ -11,28 +11,36 @@ from collections.abc import Callable
 from typing import Any
 
 from pmht_opt.exceptions import ConfigError
-from pmht_opt.ordering.ga import GAParams, solve_ga_tsp
+from pmht_opt.ordering.ga import GAParams, NoRestart, OperatorSet, StallRestart, solve_ga_tsp
 from pmht_opt.ordering.ortools_ import solve_ortools
-from pmht_opt.ordering.tour import TourResult, check_routes, route_costs, tour_distance
+from pmht_opt.ordering.pyvrp_ import solve_pyvrp
+from pmht_opt.ordering.tour import TourResult, check_routes, route_costs, route_legs, tour_distance
 from pmht_opt.scenario import Scenario
 
 #: Ordering methods by name.
-METHODS: dict[str, Callable[..., TourResult]] = {"ga": solve_ga_tsp, "ortools": solve_ortools}
+METHODS: dict[str, Callable[..., TourResult]] = {
+    "ga": solve_ga_tsp,
+    "ortools": solve_ortools,
+    "pyvrp": solve_pyvrp,
+}
 
 
 def order_locales(scenario: Scenario, method: str = "ga", **options: Any) -> TourResult:
-    """Order the locales into one open route per platform.
+    """Order the locales into one route per platform: open (the paper's problem) or, with
+    ``closed=True``, back to each platform's start (return to base; every method takes ``closed``).
 
     Parameters
     ----------
     scenario
         The scenario to solve.
     method
-        ``"ga"`` (:func:`solve_ga_tsp`, the paper's baseline) or ``"ortools"`` (:func:`solve_ortools`,
-        near-optimal; needs the ``ortools`` extra).
+        ``"ga"`` (:func:`solve_ga_tsp`, the paper's baseline), ``"ortools"`` (:func:`solve_ortools`,
+        near-optimal; needs the ``ortools`` extra) or ``"pyvrp"`` (:func:`solve_pyvrp`, near-optimal
+        and deterministic for a seed; needs the ``pyvrp`` extra).
     options
         Keyword options of the chosen method, e.g. ``seed``, ``iterations``, ``min_tour``, ``operators``
-        (``"improved"`` or the paper's ``"kirk"``) for the GA or ``time_limit``, ``min_tour`` for OR-Tools.
+        (``"improved"`` or the paper's ``"kirk"``), ``restart``, ``stop`` for the GA or ``time_limit``,
+        ``min_tour`` for OR-Tools, ``seed``, ``iterations``, ``no_improvement``, ``min_tour`` for PyVRP.
 
     Raises
     ------
@@ -56,11 +64,16 @@ def order_locales(scenario: Scenario, method: str = "ga", **options: Any) -> Tou
 __all__ = [
     "METHODS",
     "GAParams",
+    "NoRestart",
+    "OperatorSet",
+    "StallRestart",
     "TourResult",
     "check_routes",
     "order_locales",
     "route_costs",
+    "route_legs",
     "solve_ga_tsp",
     "solve_ortools",
+    "solve_pyvrp",
     "tour_distance",
 ]

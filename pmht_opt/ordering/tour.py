@@ -1,15 +1,17 @@
-r"""Tours of the open multiple travelling salesman problem and their cost (SPEC section 3).
+r"""Tours of the multiple travelling salesman problem from per-platform starts, and their cost.
 
 A *tour* is one route per platform: route ``m`` is an integer array of locale indices in visiting order,
-flown by platform ``m`` from its start. Every locale is in exactly one route and nobody returns, so the
-cost of a tour is
+flown by platform ``m`` from its start. Every locale is in exactly one route. In an *open* tour (the
+paper's problem) nobody returns, so the cost of a tour is
 
 .. math::
 
     C = \sum_{m=1}^{M} \Big( \lVert z_{r_m(1)} - s_m \rVert
         + \sum_{k=2}^{|r_m|} \lVert z_{r_m(k)} - z_{r_m(k-1)} \rVert \Big),
 
-with ``s_m`` platform ``m``'s start and an empty route costing 0. The solvers compute ``C`` from
+with ``s_m`` platform ``m``'s start and an empty route costing 0. In a *closed* tour (return to base)
+each platform flies back to its start after its last locale, which adds
+:math:`\lVert s_m - z_{r_m(|r_m|)} \rVert` per non-empty route. The solvers compute ``C`` from
 precomputed distance matrices; :func:`route_costs` recomputes it here from coordinates alone, so a result
 can be checked without trusting the solver that made it.
 """
@@ -99,8 +101,33 @@ def check_routes(scenario: Scenario, routes: Sequence[Any]) -> list[np.ndarray]:
     return out
 
 
-def route_costs(scenario: Scenario, routes: Sequence[Any]) -> np.ndarray:
-    """Distance flown by each platform: start to first locale plus the legs between locales.
+def _check_closed(closed: Any) -> bool:
+    if not isinstance(closed, (bool, np.bool_)):
+        raise ConfigError(f"closed: expected True (return to base) or False (open routes), got {closed!r}.")
+    return bool(closed)
+
+
+def route_legs(scenario: Scenario, routes: Sequence[Any], closed: bool = False) -> list[np.ndarray]:
+    """The points each platform flies through: its start, its locales and, if ``closed``, its start again.
+
+    Returns
+    -------
+    list of numpy.ndarray
+        ``(k, 2)`` per platform; just the start for an empty route.
+    """
+    closed = _check_closed(closed)
+    checked = check_routes(scenario, routes)
+    starts = scenario.start_positions
+    legs = []
+    for m, route in enumerate(checked):
+        back = [starts[m : m + 1]] if closed and route.size else []
+        legs.append(np.vstack([starts[m : m + 1], scenario.locales[route], *back]))
+    return legs
+
+
+def route_costs(scenario: Scenario, routes: Sequence[Any], closed: bool = False) -> np.ndarray:
+    """Distance flown by each platform: start to first locale, the legs between locales and, if
+    ``closed``, the leg from the last locale back to the start.
 
     Computed from coordinates (not from any distance matrix), after validating the tour with
     :func:`check_routes`.
@@ -110,19 +137,16 @@ def route_costs(scenario: Scenario, routes: Sequence[Any]) -> np.ndarray:
     numpy.ndarray
         ``(M,)`` distances; 0 for an empty route.
     """
-    checked = check_routes(scenario, routes)
-    starts = scenario.start_positions
-    out = np.zeros(len(checked))
-    for m, route in enumerate(checked):
-        if route.size:
-            pts = np.vstack([starts[m : m + 1], scenario.locales[route]])
-            out[m] = float(np.hypot(*np.diff(pts, axis=0).T).sum())
-    return out
+    legs = route_legs(scenario, routes, closed)
+    return np.array([float(np.hypot(*np.diff(pts, axis=0).T).sum()) for pts in legs])
 
 
-def tour_distance(scenario: Scenario, routes: Sequence[Any]) -> float:
-    """Total distance of a tour, validating it first (see :func:`check_routes` for the errors)."""
-    return float(route_costs(scenario, routes).sum())
+def tour_distance(scenario: Scenario, routes: Sequence[Any], closed: bool = False) -> float:
+    """Total distance of a tour, validating it first (see :func:`check_routes` for the errors).
+
+    ``closed``: each platform returns to its start, and the return legs count.
+    """
+    return float(route_costs(scenario, routes, closed).sum())
 
 
 @dataclass
@@ -135,8 +159,8 @@ class TourResult:
         One ``intp`` array of locale indices per platform, in visiting order; route ``m`` starts at
         platform ``m``'s start.
     total_distance
-        Sum over platforms of start-to-first-locale plus consecutive legs (no return), in scenario units,
-        recomputed in floating point from the routes.
+        Sum over platforms of start-to-first-locale plus consecutive legs (and the legs back to the
+        starts if :attr:`closed`), in scenario units, recomputed in floating point from the routes.
     history
         Best cost found after each iteration (GA), or the costs of the successive improving solutions
         (OR-Tools); never increasing.
@@ -148,6 +172,8 @@ class TourResult:
         The scenario solved (used by :meth:`validate` and :meth:`plot`).
     extras
         Solver-specific details (parameters used, status, ...).
+    closed
+        Whether each platform returns to its start (return to base) and the return legs are costed.
     """
 
     routes: list[np.ndarray]
@@ -157,13 +183,16 @@ class TourResult:
     method: str
     scenario: Scenario | None = field(default=None, repr=False)
     extras: dict[str, Any] = field(default_factory=dict)
+    closed: bool = False
 
     @classmethod
-    def from_routes(cls, scenario: Scenario, routes: Sequence[Any], method: str = "given") -> TourResult:
+    def from_routes(
+        cls, scenario: Scenario, routes: Sequence[Any], method: str = "given", closed: bool = False
+    ) -> TourResult:
         """Wrap a user-supplied tour, validating it and computing its distance."""
         checked = check_routes(scenario, routes)
-        dist = tour_distance(scenario, checked)
-        return cls(checked, dist, np.array([dist]), 0.0, method, scenario)
+        dist = tour_distance(scenario, checked, closed)
+        return cls(checked, dist, np.array([dist]), 0.0, method, scenario, closed=closed)
 
     @property
     def n_platforms(self) -> int:
@@ -188,7 +217,7 @@ class TourResult:
     @property
     def route_distances(self) -> np.ndarray:
         """``(M,)`` distance flown by each platform (needs :attr:`scenario`)."""
-        return route_costs(self._scenario(None), self.routes)
+        return route_costs(self._scenario(None), self.routes, self.closed)
 
     @property
     def assignment(self) -> np.ndarray:
@@ -216,8 +245,8 @@ class TourResult:
         """Check the tour against a scenario without trusting the solver.
 
         Every locale must be in exactly one route, each route must hold at least ``min_tour`` locales,
-        and :attr:`total_distance` must equal the distance recomputed from coordinates (relative
-        tolerance :data:`DISTANCE_RTOL`).
+        and :attr:`total_distance` must equal the distance recomputed from coordinates, with the return
+        legs if :attr:`closed` (relative tolerance :data:`DISTANCE_RTOL`).
 
         Raises
         ------
@@ -227,7 +256,7 @@ class TourResult:
             A stored distance that disagrees with the recomputation.
         """
         sc = self._scenario(scenario)
-        recomputed = tour_distance(sc, self.routes)
+        recomputed = tour_distance(sc, self.routes, self.closed)
         short = [m for m, r in enumerate(self.routes) if len(r) < min_tour]
         if short:
             raise ConfigError(f"routes: route(s) {short} hold fewer than min_tour={min_tour} locales.")
@@ -244,6 +273,7 @@ class TourResult:
             "total_distance": self.total_distance,
             "wall_time": self.wall_time,
             "routes": [r.tolist() for r in self.routes],
+            "closed": self.closed,
             "history_last": float(self.history[-1]) if self.history.size else None,
             "n_iterations": self.n_iterations,
         }
@@ -253,9 +283,7 @@ class TourResult:
         from pmht_opt.plotting import plot_paths
 
         sc = self._scenario(scenario)
-        routes = check_routes(sc, self.routes)
-        starts = sc.start_positions
-        legs = [np.vstack([starts[m : m + 1], sc.locales[route]]) for m, route in enumerate(routes)]
+        legs = route_legs(sc, self.routes, self.closed)
         label = title if title is not None else f"{self.method}: total distance {self.total_distance:.2f}"
         return plot_paths(sc, legs, path, title=label, assignment=self.assignment)
 
