@@ -317,7 +317,8 @@ def test_obstacle_report_counts_cutting_segments() -> None:
     graze = np.zeros((1, 2, 6))
     graze[0, :, 0] = [3.5, 4.5]
     graze[0, :, 3] = [4.5, 3.5]  # crosses the corner (4, 4) at depth 0
-    assert sq.violation(graze, ConstraintContext(scenario=sc, states=graze)).max_violation == pytest.approx(0.0)
+    graze_ctx = ConstraintContext(scenario=sc, states=graze)
+    assert sq.violation(graze, graze_ctx).max_violation == pytest.approx(0.0)
     dent = graze.copy()
     dent[0, :, 3] = [4.7, 3.7]  # passes 0.2 / sqrt(2) inside the corner
     depth = sq.violation(dent, ConstraintContext(scenario=sc, states=dent)).max_violation
