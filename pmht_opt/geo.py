@@ -100,11 +100,12 @@ class GeoOrigin:
             value: Any = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
                 raise ScenarioError(f"origin.{key}: expected a number of degrees, got {value!r}.")
-            if not math.isfinite(value) or abs(value) > limit:
+            degrees = float(value)
+            if not math.isfinite(degrees) or abs(degrees) > limit:
                 raise ScenarioError(
                     f"origin.{key}: expected degrees in [-{limit:g}, {limit:g}], got {value!r}."
                 )
-            object.__setattr__(self, key, float(value))
+            object.__setattr__(self, key, degrees)
         if abs(self.lat) == 90.0:
             raise ScenarioError("origin.lat: a pole has no east and north; choose an origin off the pole.")
 
