@@ -173,7 +173,8 @@ def test_unknown_fields_and_bad_files(tmp_path: Path) -> None:
 def test_planner_settings_read_typed_and_checked(tmp_path: Path) -> None:
     text = mission_text(
         planner='kind = "smoothed"\nsolver = "osqp"\niterations = 7\nanneal = [0.5, 3]\n'
-        'return_to_base = true\nsplit = "distance"\n[planner.ordering]\nmethod = "ga"\nseed = 3\niterations = 50'
+        'return_to_base = true\nsplit = "distance"\n'
+        '[planner.ordering]\nmethod = "ga"\nseed = 3\niterations = 50'
     )
     s = load_mission(write(tmp_path, text)).planner
     assert (s.kind, s.solver, s.iterations, s.return_to_base, s.split) == (
