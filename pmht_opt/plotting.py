@@ -161,9 +161,14 @@ def _direction_arrows(
         )
 
 
-def _view(bounds: tuple[float, float, float, float], lines: Sequence[np.ndarray]) -> tuple[float, ...] | None:
-    """Axis limits that clip a run-away plan to its area, or ``None`` when everything fits."""
+def _view(
+    bounds: tuple[float, float, float, float], starts: np.ndarray, lines: Sequence[np.ndarray]
+) -> tuple[float, ...] | None:
+    """Axis limits that clip a run-away plan to its area and starts, or ``None`` when everything fits
+    near them."""
     xmin, xmax, ymin, ymax = bounds
+    xmin, xmax = min(xmin, float(starts[:, 0].min())), max(xmax, float(starts[:, 0].max()))
+    ymin, ymax = min(ymin, float(starts[:, 1].min())), max(ymax, float(starts[:, 1].max()))
     size = max(xmax - xmin, ymax - ymin, 1e-12)
     pts = np.vstack([np.asarray(line, dtype=float) for line in lines])
     far = RUNAWAY_FRACTION * size
@@ -208,11 +213,18 @@ def _annotate_excursions(
         )
 
 
+def _in_grid(ax: Any) -> bool:
+    """Whether ``ax`` is one panel of several (insets not counted)."""
+    return sum(1 for a in ax.figure.axes if a.get_subplotspec() is not None) > 1
+
+
 def _inset(ax: Any, scenario: Scenario, lines: Sequence[np.ndarray], view: tuple[float, ...]) -> Any:
-    """A small map of the whole extent beside the axes, with the clipped view outlined."""
+    """A small map of the whole extent, with the clipped view outlined: beside a lone axes, in the
+    upper right corner of a panel of a grid (where there is no room beside it)."""
     from matplotlib.patches import Rectangle
 
-    ins = ax.inset_axes([1.04, 0.0, 0.42, 0.42])
+    ins = ax.inset_axes([0.63, 0.63, 0.36, 0.36] if _in_grid(ax) else [1.04, 0.0, 0.42, 0.42])
+    ins.set_facecolor((1, 1, 1, 0.92))
     for m, line in enumerate(lines):
         line = np.asarray(line, dtype=float)
         ins.plot(line[:, 0], line[:, 1], "-", color=platform_colour(m), lw=0.8)
@@ -222,7 +234,10 @@ def _inset(ax: Any, scenario: Scenario, lines: Sequence[np.ndarray], view: tuple
     ins.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec="k", lw=0.8, ls="--"))
     ins.set_aspect("equal", adjustable="datalim")
     ins.tick_params(labelsize=6)
-    ins.set_title("whole extent (dashed: the main view)", fontsize=7)
+    if _in_grid(ax):
+        ins.text(0.5, 0.03, "whole extent", transform=ins.transAxes, fontsize=6, ha="center", va="bottom")
+    else:
+        ins.set_title("whole extent (dashed: the main view)", fontsize=7)
     return ins
 
 
@@ -248,7 +263,7 @@ def draw_paths(
     *,
     radius: float | None = None,
     show_radius: bool = False,
-    legend: str | None = "outside",
+    legend: str | None = "auto",
     labels: tuple[str, str] = ("x", "y"),
     unit: str = "",
     clip: bool = True,
@@ -275,7 +290,9 @@ def draw_paths(
     show_radius
         Draw a circle of the coverage radius around every locale.
     legend
-        ``"outside"`` (right of the axes), ``"inside"`` (best place within) or ``None``.
+        ``"outside"`` (right of the axes), ``"inside"`` (best place within), ``"below"``, ``None``,
+        or ``"auto"``: outside a lone axes; in a grid of panels, below the bottom-left panel only
+        (one legend for the figure, its entries the same for every panel).
     labels, unit
         Axis labels, and the unit of lengths in annotations (e.g. ``" m"``).
     clip
@@ -286,6 +303,13 @@ def draw_paths(
     from matplotlib.patches import Circle, Rectangle
 
     lines = [np.asarray(positions[m], dtype=float) for m in range(len(positions))]
+    grid = _in_grid(ax)
+    if legend == "auto":
+        spec = ax.get_subplotspec()
+        if not grid:
+            legend = "outside"
+        else:
+            legend = "below" if spec is not None and spec.is_last_row() and spec.is_first_col() else None
     for con in constraints:
         draw_constraint(con, ax)
     if scenario.bounds is not None:
@@ -305,11 +329,16 @@ def draw_paths(
             mine = np.asarray(assignment) == m
             ax.plot(z[mine, 0], z[mine, 1], "x", color=platform_colour(m), ms=5, mew=1.2, ls="none", zorder=2)
     cross = Line2D([], [], marker="x", color="k", ls="none", ms=5)
-    handles.append(_Labelled(cross, f"locale, covered (within {rho:g}{unit} of a path)"))
+    covered = "locale" if grid else f"locale, covered (within {rho:g}{unit} of a path)"
+    handles.append(_Labelled(cross, covered))
     if missed.any():
-        ax.plot(z[missed, 0], z[missed, 1], zorder=2, **MISSED_STYLE)
-        ring = Line2D([], [], **MISSED_STYLE)
-        handles.append(_Labelled((cross, ring), f"locale, missed ({int(missed.sum())} of {len(z)})"))
+        ring_style = {**MISSED_STYLE, "ms": 6, "mew": 1.0} if grid else MISSED_STYLE
+        ax.plot(z[missed, 0], z[missed, 1], zorder=2, **ring_style)
+        ring = Line2D([], [], **ring_style)
+        label = f"locale, missed ({int(missed.sum())} of {len(z)})"
+        if grid:
+            label = f"missed (> {rho:g}{unit} from every path)"
+        handles.append(_Labelled((cross, ring), label))
     if show_radius:
         handles.append(
             Line2D(
@@ -347,7 +376,7 @@ def draw_paths(
             mec="k",
             mew=0.6,
             ls="none",
-            label="end (pointing along the heading)",
+            label="end (heading)" if grid else "end (pointing along the heading)",
         )
     )
     for patch in ax.patches:
@@ -360,7 +389,11 @@ def draw_paths(
             handles.append(line2d)
     ax.set_xlabel(labels[0])
     ax.set_ylabel(labels[1])
-    view = _view(scenario.bounds, lines) if clip and scenario.bounds is not None and lines else None
+    view = (
+        _view(scenario.bounds, scenario.start_positions, lines)
+        if clip and scenario.bounds is not None and lines
+        else None
+    )
     if view is not None:
         assert scenario.bounds is not None
         ax.set_xlim(view[0], view[1])
@@ -376,11 +409,18 @@ def draw_paths(
         from matplotlib.legend_handler import HandlerTuple
 
         entries = [h.artist if isinstance(h, _Labelled) else h for h in handles]
-        where: dict[str, Any] = (
-            {"loc": "upper left", "bbox_to_anchor": (1.02, 1.0), "fontsize": 7, "frameon": False}
-            if legend == "outside"
-            else {"loc": "best", "fontsize": 6, "framealpha": 0.85}
-        )
+        where: dict[str, Any] = {
+            "outside": {"loc": "upper left", "bbox_to_anchor": (1.02, 1.0), "fontsize": 7, "frameon": False},
+            "below": {
+                "loc": "upper left",
+                "bbox_to_anchor": (0.0, -0.14),
+                "fontsize": 6.5,
+                "ncol": 2,
+                "columnspacing": 0.8,
+                "handletextpad": 0.4,
+            },
+            "inside": {"loc": "best", "fontsize": 6, "framealpha": 0.85},
+        }[legend]
         ax.legend(entries, _labels(handles), handler_map={tuple: HandlerTuple(ndivide=None, pad=0)}, **where)
 
 
