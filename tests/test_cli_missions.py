@@ -310,3 +310,46 @@ def test_ctrl_c_stops_with_one_line_and_status_130(tmp_path: Path) -> None:
     assert proc.returncode == cli.EXIT_INTERRUPTED
     assert "Traceback" not in err and err.rstrip().splitlines()[-1] == "pmht-opt: interrupted."
     assert not (tmp_path / "x.png").exists()
+
+
+def _readme_block(after: str) -> list[str]:
+    """The lines of the first ``bash`` block of the README after the heading ``after``."""
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = text[text.index(after) :]
+    block = section[section.index("```bash\n") + len("```bash\n") :]
+    return block[: block.index("```")].strip().splitlines()
+
+
+def test_the_readme_geo_example_runs_as_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    setup_venv, setup_install, run = _readme_block("### A real mission")
+    assert setup_venv.startswith("python3 -m venv .venv") and setup_install == "pip install ."
+    argv = run.split()
+    assert argv[0] == "pmht-opt"
+    monkeypatch.chdir(tmp_path)
+    assert main(argv[1:]) == 0
+    out = tmp_path / "out"
+    assert sorted(p.name for p in out.iterdir()) == [
+        "survey-0.plan",
+        "survey-1.plan",
+        "survey-2.plan",
+        "survey.geojson",
+        "survey.png",
+    ]
+    plan = json.loads((out / "survey-1.plan").read_text())
+    assert plan["fileType"] == "Plan" and plan["mission"]["items"][2]["params"][6] == 60.0
+    features = json.loads((out / "survey.geojson").read_text())["features"]
+    assert sum(f["properties"]["kind"] == "locale" for f in features) == 36
+    # The plan returns to base, at rest, within the speed limit.
+    mission = po.io.example_mission("survey")
+    paths = po.io.read_geojson_paths(out / "survey.geojson", mission.origin)
+    for m, path in enumerate(paths):
+        assert np.hypot(*(path[-1] - mission.scenario.start_positions[m])) < 1e-3
+
+
+def test_the_readme_quick_start_commands() -> None:
+    assert _readme_block("## Quick start") == ["python3 -m venv .venv && . .venv/bin/activate"]
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert "pip install . && pmht-opt demo" in text and 'pip install ".[test]" && python -m pytest -q' in text
+    assert "Python 3.11 or newer" in text and 'pip install ".[ortools]"' in text
+    ignored = (Path(__file__).resolve().parents[1] / ".gitignore").read_text().split()
+    assert "/pmht-demo-*.png" in ignored and "/out/" in ignored
