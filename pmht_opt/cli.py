@@ -153,14 +153,15 @@ def _add_planner_options(p: argparse.ArgumentParser, mission: bool) -> None:
     """Options of the EM planner; for a mission they override its ``[planner]`` table."""
     if mission:
         p.add_argument(
-            "--planner", choices=PLANNERS, default=None, help=f"planner {_fallback('kind', 'pmht')}"
+            "--planner", choices=PLANNERS, default=None, help=f"planner {_fallback('kind', DEFAULTS.kind)}"
         )
     say: Callable[[str, Any], str] = _fallback if mission else (lambda key, value: f"(default: {value})")
     p.add_argument(
         "--solver",
         default=None,
         choices=["auto", *sorted(BACKENDS)],
-        help=f"M-step backend; auto: banded without constraints, clarabel with them {say('solver', 'auto')}",
+        help="M-step backend; auto: banded without constraints, clarabel with them "
+        f"{say('solver', DEFAULTS.solver)}",
     )
     p.add_argument(
         "--iterations", type=int, default=None, help=f"EM iterations {say('iterations', DEFAULTS.iterations)}"
@@ -169,7 +170,7 @@ def _add_planner_options(p: argparse.ArgumentParser, mission: bool) -> None:
         "--tol",
         type=float,
         default=None,
-        help=f"relative objective change to stop at, 0: never {say('tol', 0.0)}",
+        help=f"relative objective change to stop at, 0: never {say('tol', DEFAULTS.tol)}",
     )
     anneal = p.add_mutually_exclusive_group()
     anneal.add_argument(
@@ -178,7 +179,7 @@ def _add_planner_options(p: argparse.ArgumentParser, mission: bool) -> None:
         metavar=("START", "ITERATIONS"),
         default=None,
         help=f"anneal r geometrically from START over the first ITERATIONS iterations "
-        f"{say('anneal', 'start 1.0 over 30 iterations')}",
+        f"{say('anneal', DEFAULTS.schedule().describe())}",
     )
     anneal.add_argument("--no-anneal", action="store_true", help="plain EM: the scenario's r from the start")
     p.add_argument(
@@ -206,7 +207,9 @@ def _add_output_options(p: argparse.ArgumentParser, default_figure: str | None) 
         ".plan (QGroundControl, one file per platform: NAME-0.plan, NAME-1.plan...; geo-referenced "
         "missions only)",
     )
-    p.add_argument("--animate", type=Path, default=None, help="write a GIF of the EM iterations here")
+    p.add_argument(
+        "--animate", type=Path, default=None, help="write a GIF of the EM iterations here (default: none)"
+    )
     p.add_argument("--show-radius", action="store_true", help="draw the coverage radius around each locale")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -514,7 +517,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--ordering",
         choices=ORDERINGS,
         default=None,
-        help=f"the smoothed planner's ordering {_fallback('ordering', 'ga')}",
+        help=f"the smoothed planner's ordering {_fallback('ordering', DEFAULTS.method)}",
     )
     plan.add_argument(
         "--seed", type=int, default=None, help="the ordering's seed (ga, pyvrp) (default: the method's)"
@@ -538,7 +541,10 @@ def build_parser() -> argparse.ArgumentParser:
     order = command("order", "order the locales of a mission into one route per platform")
     _add_mission_source(order)
     order.add_argument(
-        "--method", choices=ORDERINGS, default=None, help=f"ordering method {_fallback('ordering', 'ga')}"
+        "--method",
+        choices=ORDERINGS,
+        default=None,
+        help=f"ordering method {_fallback('ordering', DEFAULTS.method)}",
     )
     order.add_argument("--seed", type=int, default=None, help="seed (ga, pyvrp) (default: the method's)")
     order.add_argument(
