@@ -263,6 +263,18 @@ class PlanResult:
             constraints=self.constraints,
         )
 
+    def to_csv(self, path: str | Path, origin: Any = None) -> Path:
+        """Write the plan as CSV, one row per platform and step (:func:`pmht_opt.io.export_csv`)."""
+        from pmht_opt.io import export_csv
+
+        return export_csv(self, path, origin)
+
+    def to_geojson(self, path: str | Path, origin: Any = None) -> Path:
+        """Write the plan as GeoJSON, RFC 7946 (:func:`pmht_opt.io.export_geojson`)."""
+        from pmht_opt.io import export_geojson
+
+        return export_geojson(self, path, origin)
+
     def _default_title(self) -> str:
         name = f"{self.scenario.name}: " if self.scenario.name else ""
         return (

@@ -1,0 +1,267 @@
+"""Mission files: a scenario, its constraints, the planner's settings and, optionally, a geo origin.
+
+A mission file (TOML or JSON) is a scenario file (:meth:`~pmht_opt.Scenario.load`) with up to three
+more parts: ``[[constraints]]`` tables (:mod:`pmht_opt.io.constraints`), a ``[planner]`` table
+(:mod:`pmht_opt.io.settings`) and a ``[geo]`` table that makes the mission geo-referenced:
+
+.. code-block:: toml
+
+    name = "survey"
+    horizon = 600
+    dt = 1.0                         # s
+    q = 6.25e-4                      # m^2/s^5
+    r = 625.0                        # m^2 (sigma = 25 m)
+    coverage_radius = 75.0           # m
+    locales = "sites.csv"            # or [[lat, lon], ...]; a CSV or GeoJSON file next to this one
+    starts = [[-35.3632, 149.1652], [-35.3700, 149.1600]]
+
+    [geo]
+    origin = [-35.3632, 149.1652]    # [lat, lon], WGS84 degrees
+    altitude = 40.0                  # m above the take-off point, for exported flight plans
+
+    [planner]
+    return_to_base = true
+
+    [[constraints]]
+    kind = "speed_limit"
+    vmax = 10.0                      # m/s
+
+With ``[geo]``, every point (``locales``, ``starts``, obstacle centres and vertices, a terminal
+position) is ``[lat, lon]`` in degrees and every length, box (``bounds``, ``area_bounds``), speed
+and acceleration is in metres and seconds in the origin's east-north plane (:mod:`pmht_opt.geo`).
+Without it, points are ``[x, y]`` in the scenario's unit.
+
+Every value's type is checked before the library sees it (``horizon = "300"`` is an error naming
+``horizon``); the library's constructors then check the rest with their own messages. Every message
+starts with the file's name.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pmht_opt.constraints.base import Constraint
+from pmht_opt.exceptions import ConfigError, PmhtOptError, ScenarioError
+from pmht_opt.geo import GeoOrigin
+from pmht_opt.io import fields
+from pmht_opt.io.constraints import read_constraint, write_constraint
+from pmht_opt.io.frame import Frame
+from pmht_opt.io.points import read_points
+from pmht_opt.io.settings import PlannerSettings, read_settings
+from pmht_opt.io.toml_ import dumps
+from pmht_opt.scenario import Scenario
+
+#: Scenario fields in files, and how each is read.
+SCENARIO_FIELDS = ("name", "horizon", "dt", "q", "r", "bounds", "coverage_radius", "locales", "starts")
+#: The other top-level parts of a mission file.
+MISSION_PARTS = ("geo", "planner", "constraints")
+#: Flight altitude (m above the take-off point) of exported flight plans when ``[geo]`` gives none.
+DEFAULT_ALTITUDE = 30.0
+
+
+@dataclass
+class Mission:
+    """A planning problem as a file holds it.
+
+    Attributes
+    ----------
+    scenario
+        The scenario, in the plane (metres east and north of :attr:`origin` when geo-referenced).
+    constraints
+        The constraints of the ``[[constraints]]`` tables (not the planner's own, such as a return to
+        base: :meth:`constraints_for_plan` adds those).
+    planner
+        Which planner runs, with which settings.
+    origin
+        The geo origin, or ``None`` for a mission in the plane.
+    altitude
+        Flight altitude (m above the take-off point) of exported flight plans.
+    bounds_assumed
+        True when the file gave no ``bounds``, so the scenario's are the locales' bounding box.
+    source
+        The file the mission was read from, if any.
+    """
+
+    scenario: Scenario
+    constraints: tuple[Constraint, ...] = ()
+    planner: PlannerSettings = field(default_factory=PlannerSettings)
+    origin: GeoOrigin | None = None
+    altitude: float = DEFAULT_ALTITUDE
+    bounds_assumed: bool = False
+    source: Path | None = None
+
+    def __post_init__(self) -> None:
+        self.constraints = tuple(self.constraints)
+        for con in self.constraints:
+            con.check_scenario(self.scenario)
+        self.planner.check_r(self.scenario.r)
+
+    @property
+    def frame(self) -> Frame:
+        """How this mission's points are written (plane or latitude/longitude)."""
+        return Frame(self.origin)
+
+    def constraints_for_plan(self) -> tuple[Constraint, ...]:
+        """The file's constraints plus the planner's own (a return to base)."""
+        from pmht_opt.constraints import Terminal
+
+        extra = (Terminal.return_to_base(),) if self.planner.return_to_base else ()
+        return (*self.constraints, *extra)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The mission as a file holds it (points as ``[lat, lon]`` when geo-referenced)."""
+        frame = self.frame
+        sc = self.scenario
+        out: dict[str, Any] = {
+            "name": sc.name or None,
+            "horizon": sc.horizon,
+            "dt": sc.dt,
+            "q": sc.q,
+            "r": sc.r,
+            "coverage_radius": sc.coverage_radius,
+            "bounds": None if self.bounds_assumed or sc.bounds is None else list(sc.bounds),
+            "locales": frame.out_points(sc.locales),
+        }
+        if frame.geo and sc.starts.shape[1] != 2:
+            raise ConfigError(
+                "starts: a geo-referenced mission writes start positions only, not full states."
+            )
+        out["starts"] = frame.out_points(sc.starts) if sc.starts.shape[1] == 2 else sc.starts.tolist()
+        if self.origin is not None:
+            out["geo"] = {"origin": [self.origin.lat, self.origin.lon], "altitude": self.altitude}
+        out["planner"] = self.planner.to_table()
+        if self.constraints:
+            out["constraints"] = [write_constraint(c, frame) for c in self.constraints]
+        return out
+
+    def save(self, path: str | Path) -> Path:
+        """Write the mission to ``path`` (``.toml`` or ``.json``); see :func:`save_mission`."""
+        return save_mission(self, path)
+
+
+def _read_scenario(data: dict[str, Any], frame: Frame, base: Path) -> tuple[Scenario, bool]:
+    kwargs: dict[str, Any] = {}
+    for key in ("locales", "starts"):
+        if key not in data:
+            raise ScenarioError(f"no {key!r}: a mission needs locales and starts.")
+        value = data[key]
+        if isinstance(value, str):
+            kind = "locale" if key == "locales" else "start"
+            kwargs[key] = read_points(base / value, frame, kind)
+        elif frame.geo:
+            kwargs[key] = frame.points(key, value)
+        else:
+            kwargs[key] = fields.numbers(key, value, 2)
+    readers = {
+        "name": fields.string,
+        "horizon": fields.integer,
+        "dt": fields.number,
+        "q": fields.number,
+        "r": fields.number,
+        "coverage_radius": fields.number,
+    }
+    for key, read in readers.items():
+        if key in data:
+            kwargs[key] = read(key, data[key])
+    if "bounds" in data:
+        bounds = fields.numbers("bounds", data["bounds"], 1)
+        if len(bounds) != 4:
+            raise ScenarioError(f"bounds: expected [xmin, xmax, ymin, ymax], got {len(bounds)} values.")
+        kwargs["bounds"] = tuple(bounds)
+    return Scenario(**kwargs), "bounds" not in data
+
+
+def _read_geo(data: Any) -> tuple[GeoOrigin, float]:
+    table = fields.table("geo", data)
+    unknown = sorted(set(table) - {"origin", "altitude"})
+    if unknown:
+        raise ScenarioError(f"geo: unknown key {unknown[0]!r}; it takes origin, altitude.")
+    if "origin" not in table:
+        raise ScenarioError("geo: no origin; expected origin = [lat, lon] in degrees.")
+    origin = fields.numbers("geo.origin", table["origin"], 1)
+    if len(origin) != 2:
+        raise ScenarioError(f"geo.origin: expected [lat, lon], got {len(origin)} values.")
+    altitude = fields.number("geo.altitude", table.get("altitude", DEFAULT_ALTITUDE))
+    try:
+        return GeoOrigin(origin[0], origin[1]), altitude
+    except ScenarioError as err:
+        raise ScenarioError(f"geo.{err}") from None
+
+
+def mission_from_dict(data: Any, base: str | Path = ".", source: Path | None = None) -> Mission:
+    """A mission from a parsed file (a dict); ``base`` is where relative point files are found.
+
+    Raises
+    ------
+    ScenarioError, ConfigError
+        Naming the field (or table and key) that is wrong.
+    """
+    top = fields.table("the mission", data)
+    unknown = sorted(set(top) - set(SCENARIO_FIELDS) - set(MISSION_PARTS))
+    if unknown:
+        raise ScenarioError(
+            f"unknown field {unknown[0]!r}; a mission has {', '.join(SCENARIO_FIELDS + MISSION_PARTS)}."
+        )
+    origin, altitude = _read_geo(top["geo"]) if "geo" in top else (None, DEFAULT_ALTITUDE)
+    frame = Frame(origin)
+    scenario, assumed = _read_scenario(top, frame, Path(base))
+    raw = top.get("constraints", [])
+    if not isinstance(raw, list):
+        raise ScenarioError(f"constraints: expected an array of tables, got {fields.describe(raw)}.")
+    constraints = tuple(read_constraint(f"constraints[{i}]", c, frame) for i, c in enumerate(raw))
+    for i, con in enumerate(constraints):
+        try:
+            con.check_scenario(scenario)
+        except PmhtOptError as err:
+            raise type(err)(f"constraints[{i}]: {err}") from None
+    planner = read_settings("planner", top["planner"]) if "planner" in top else PlannerSettings()
+    try:
+        planner.check_r(scenario.r)
+    except ConfigError as err:
+        raise ConfigError(f"planner.{err}") from None
+    return Mission(scenario, constraints, planner, origin, altitude, assumed, source)
+
+
+def load_mission(path: str | Path) -> Mission:
+    """Read a mission (or plain scenario) file, ``.toml`` or ``.json``.
+
+    Raises
+    ------
+    ScenarioError, ConfigError
+        Every message starts with the file's name, then the field.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".toml", ".json"):
+        raise ScenarioError(f"{path.name}: mission files end in .toml or .json.")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as err:
+        raise ScenarioError(f"cannot read {str(path)!r}: {err.strerror or err}.") from None
+    try:
+        data = json.loads(text) if suffix == ".json" else tomllib.loads(text)
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as err:
+        raise ScenarioError(f"{path.name}: not valid {suffix[1:].upper()}: {err}.") from None
+    try:
+        return mission_from_dict(data, path.parent, path)
+    except PmhtOptError as err:
+        raise type(err)(f"{path.name}: {err}") from None
+
+
+def save_mission(mission: Mission, path: str | Path) -> Path:
+    """Write ``mission`` to ``path``, ``.toml`` or ``.json`` by the suffix; :func:`load_mission` reads
+    it back to the same mission (geo points to 1e-9 degrees, 0.1 mm)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    data = mission.to_dict()
+    if suffix == ".json":
+        path.write_text(json.dumps({k: v for k, v in data.items() if v is not None}, indent=1) + "\n")
+    elif suffix == ".toml":
+        path.write_text(dumps(data, header="pmht-opt mission"))
+    else:
+        raise ScenarioError(f"{path.name}: mission files end in .toml or .json.")
+    return path

@@ -1,0 +1,119 @@
+"""Running a mission: its planner, with its settings and constraints, exactly as the library would.
+
+:data:`PLANNERS` maps each planner's name to one function ``(mission, config, callback) ->
+PlanResult``; the command line runs missions through :func:`plan_mission`, so a mission planned from
+a file is the plan :func:`~pmht_opt.plan_pmht` (or :func:`~pmht_opt.plan_smoothed`, or
+``plan_coverage``) gives for the same scenario, constraints and settings.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+from collections.abc import Callable
+from typing import Any
+
+from pmht_opt.exceptions import ConfigError, MissingDependencyError
+from pmht_opt.io.mission import Mission
+from pmht_opt.ordering import TourResult
+from pmht_opt.planner import PMHTConfig, ProgressCallback, plan_pmht
+from pmht_opt.result import PlanResult
+from pmht_opt.smoothed import plan_smoothed
+
+
+def _orderer(method: str) -> Callable[..., TourResult]:
+    from pmht_opt.ordering import METHODS
+
+    solve = METHODS.get(method)
+    if solve is None:
+        raise ConfigError(
+            f"ordering method {method!r} is not in this installation of pmht-opt; it has "
+            f"{', '.join(sorted(METHODS))}."
+        )
+    return solve
+
+
+def order_mission(mission: Mission) -> TourResult:
+    """Order the mission's locales with its ordering method and options
+    (:func:`~pmht_opt.order_locales`); closed routes when the mission returns to base.
+
+    Raises
+    ------
+    ConfigError
+        A method this installation lacks, an option it does not take, or a return to base with a
+        method that cannot close its routes.
+    """
+    from pmht_opt.ordering import order_locales
+
+    s = mission.planner
+    options = s.ordering_options
+    if s.return_to_base:
+        if "closed" not in inspect.signature(_orderer(s.method)).parameters:
+            raise ConfigError(
+                f"return_to_base: the {s.method!r} ordering of this installation cannot close its routes "
+                "(it has no 'closed' option)."
+            )
+        options = {**options, "closed": True}
+    else:
+        _orderer(s.method)
+    return order_locales(mission.scenario, method=s.method, **options)
+
+
+def _pmht(mission: Mission, config: PMHTConfig, callback: ProgressCallback | None) -> PlanResult:
+    result: PlanResult = plan_pmht(mission.scenario, config, callback=callback)
+    return result
+
+
+def _smoothed(mission: Mission, config: PMHTConfig, callback: ProgressCallback | None) -> PlanResult:
+    s = mission.planner
+    tour = order_mission(mission)
+    return plan_smoothed(mission.scenario, tour, config, s.visit_radius, split=s.split, callback=callback)
+
+
+def _coverage(mission: Mission, config: PMHTConfig, callback: ProgressCallback | None) -> PlanResult:
+    try:
+        module = importlib.import_module("pmht_opt.coverage")
+    except ModuleNotFoundError as err:
+        if err.name != "pmht_opt.coverage":
+            raise MissingDependencyError(
+                f"the coverage planner needs {err.name}, which is not installed."
+            ) from None
+        raise ConfigError(
+            "planner 'coverage': this installation of pmht-opt has no coverage planner yet."
+        ) from None
+    plan_coverage: Any = module.plan_coverage
+    radius = (
+        mission.planner.radius if mission.planner.radius is not None else mission.scenario.coverage_radius
+    )
+    kwargs: dict[str, Any] = {}
+    if callback is not None and "callback" in inspect.signature(plan_coverage).parameters:
+        kwargs["callback"] = callback
+    result: PlanResult = plan_coverage(mission.scenario, radius, config, **kwargs)
+    return result
+
+
+#: Planner functions by name: ``(mission, config, callback) -> PlanResult``.
+PLANNERS: dict[str, Callable[[Mission, PMHTConfig, ProgressCallback | None], PlanResult]] = {
+    "pmht": _pmht,
+    "smoothed": _smoothed,
+    "coverage": _coverage,
+}
+
+
+def plan_mission(
+    mission: Mission, callback: ProgressCallback | None = None, snapshots: tuple[int, ...] = ()
+) -> PlanResult:
+    """Plan ``mission`` with its planner, settings and constraints (plus a return to base when its
+    settings ask for one).
+
+    Parameters
+    ----------
+    mission
+        The mission (:func:`~pmht_opt.io.load_mission`).
+    callback
+        ``callback(iteration, objective)`` after every EM iteration.
+    snapshots
+        EM iterations after which to keep the positions (``PMHTConfig.snapshots``).
+    """
+    config = mission.planner.config(mission.constraints_for_plan(), snapshots)
+    return PLANNERS[mission.planner.kind](mission, config, callback)

@@ -1,0 +1,355 @@
+"""The command line is the library: every constraint kind and every planner from a mission file gives
+the plan the library gives; outputs are checked before planning; exits are clean."""
+
+from __future__ import annotations
+
+import inspect
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import types
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from test_io_mission import BASE, TABLES, mission_text, write
+
+import pmht_opt as po
+from pmht_opt import cli
+from pmht_opt.cli import main
+from pmht_opt.ordering import METHODS
+
+#: Plans in these tests: few iterations, no annealing (so VisitAll's warm-up ends at once).
+PLANNER = "iterations = 4\nanneal = false"
+
+
+def plan_json(tmp_path: Path, argv: list[str]) -> dict[str, Any]:
+    out = tmp_path / "plan.json"
+    assert main([*argv, "--json", str(out), "--quiet"]) == 0
+    return json.loads(out.read_text())  # type: ignore[no-any-return]
+
+
+def library_scenario() -> po.Scenario:
+    return po.Scenario(
+        locales=[[1.0, 1.0], [3.0, 1.5], [2.0, 3.5], [0.5, 3.0]], starts=[[0.5, 0.5], [3.5, 3.5]], horizon=40
+    )
+
+
+@pytest.mark.parametrize("kind", sorted(TABLES))
+def test_each_constraint_kind_plans_as_the_library(tmp_path: Path, kind: str) -> None:
+    body, constraint = TABLES[kind]
+    path = write(tmp_path, mission_text((kind, body), planner=PLANNER))
+    got = plan_json(tmp_path, ["plan", str(path)])
+    want = po.plan_pmht(library_scenario(), po.PMHTConfig(max_iter=4, anneal=None, constraints=[constraint]))
+    assert np.allclose(got["positions"], want.positions, rtol=0, atol=1e-9)
+    assert got["metrics"]["constraints"].keys() == want.metrics()["constraints"].keys()
+
+
+def test_the_smoothed_planner_plans_as_the_library(tmp_path: Path) -> None:
+    planner = f'kind = "smoothed"\n{PLANNER}\n[planner.ordering]\nmethod = "ga"\nseed = 2\niterations = 300'
+    got = plan_json(tmp_path, ["plan", str(write(tmp_path, mission_text(planner=planner)))])
+    sc = library_scenario()
+    tour = po.order_locales(sc, "ga", seed=2, iterations=300)
+    want = po.plan_smoothed(sc, tour, po.PMHTConfig(max_iter=4, anneal=None))
+    assert np.allclose(got["positions"], want.positions, rtol=0, atol=1e-9)
+    # The command line's options override the file's.
+    again = plan_json(tmp_path, ["plan", str(tmp_path / "m.toml"), "--planner", "pmht", "--iterations", "2"])
+    assert again["metrics"]["iterations"] == 2
+
+
+def test_the_coverage_planner_is_wired_by_name(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = write(tmp_path, mission_text(planner=f'kind = "coverage"\nradius = 0.5\n{PLANNER}'))
+    try:
+        import pmht_opt.coverage  # noqa: F401
+    except ModuleNotFoundError:
+        assert main(["plan", str(path), "--quiet"]) == 2
+        assert "no coverage planner yet" in capsys.readouterr().err
+    calls: list[tuple[float, po.PMHTConfig]] = []
+
+    def plan_coverage(
+        scenario: po.Scenario, radius: float, config: po.PMHTConfig, **kw: Any
+    ) -> po.PlanResult:
+        calls.append((radius, config))
+        return po.plan_pmht(scenario, config)
+
+    monkeypatch.setitem(sys.modules, "pmht_opt.coverage", types.SimpleNamespace(plan_coverage=plan_coverage))
+    got = plan_json(tmp_path, ["plan", str(path), "--return-to-base"])
+    (radius, config), *_ = calls
+    assert radius == 0.5 and config.max_iter == 4
+    assert [type(c) for c in config.constraints] == [po.Terminal]
+    want = po.plan_pmht(library_scenario(), config)
+    assert np.allclose(got["positions"], want.positions, atol=1e-9)
+
+
+def test_return_to_base_ends_at_the_start_at_rest(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = write(tmp_path, mission_text(planner=PLANNER))
+    got = plan_json(tmp_path, ["plan", str(path), "--return-to-base", "--export", str(tmp_path / "p.csv")])
+    end = np.array(got["positions"])[:, -1]
+    assert np.max(np.abs(end - library_scenario().start_positions)) < 1e-6
+    states = po.io.read_plan_csv(tmp_path / "p.csv")
+    assert np.max(np.abs(states[:, -1, [1, 2, 4, 5]])) < 1e-6  # velocity and acceleration
+    assert "return to base" in capsys.readouterr().out
+
+
+def test_order_runs_the_library_orderings(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = write(tmp_path, mission_text())
+    out = tmp_path / "tour.json"
+    assert (
+        main(["order", str(path), "--method", "ga", "--seed", "1", "--iterations", "200", "--json", str(out)])
+        == 0
+    )
+    tour = po.order_locales(library_scenario(), "ga", seed=1, iterations=200)
+    assert json.loads(out.read_text())["routes"] == [r.tolist() for r in tour.routes]
+    assert f"total distance  {tour.total_distance:.2f}" in capsys.readouterr().out
+    if "pyvrp" not in METHODS:
+        assert main(["order", str(path), "--method", "pyvrp"]) == 2
+        assert "ordering method 'pyvrp' is not in this installation" in capsys.readouterr().err
+    if "closed" not in inspect.signature(METHODS["ga"]).parameters:
+        assert main(["order", str(path), "--return-to-base"]) == 2
+        assert "cannot close its routes" in capsys.readouterr().err
+
+
+def test_closed_orderings_are_asked_for_by_name(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    asked: list[bool] = []
+
+    def closing_ga(scenario: po.Scenario, seed: int = 0, closed: bool = False) -> po.TourResult:
+        asked.append(closed)
+        return po.solve_ga_tsp(scenario, seed=seed, iterations=50)
+
+    monkeypatch.setitem(METHODS, "ga", closing_ga)
+    path = write(tmp_path, mission_text())
+    assert main(["order", str(path), "--return-to-base", "--seed", "0"]) == 0
+    assert asked == [True]
+
+
+@pytest.mark.parametrize(
+    "option, message",
+    [
+        (["--out", "{tmp}"], "is a directory; give a file name"),
+        (["--out", "{tmp}/fig.xyz"], "unknown figure format '.xyz'"),
+        (["--export", "{tmp}/paths.kml"], "unknown export format '.kml'"),
+        (["--export", "{tmp}/a.plan"], "a QGroundControl plan needs a geo-referenced mission"),
+        (["--out", "{tmp}/m.toml/fig.png"], "is not a directory"),
+        (["--json", "{tmp}/m.csv"], "unknown metrics format"),
+        (["--animate", "{tmp}/a.mp4"], "unknown animation format '.mp4'"),
+    ],
+)
+def test_outputs_are_checked_before_planning(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    option: list[str],
+    message: str,
+) -> None:
+    path = write(tmp_path, mission_text())
+
+    def never(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError("planned before checking the outputs")
+
+    monkeypatch.setattr(cli, "plan_mission", never)
+    argv = ["plan", str(path), *[o.format(tmp=tmp_path) for o in option]]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pmht-opt: error: ") and message in err and "Traceback" not in err
+    assert err.count("\n") == 1
+
+
+def test_an_unwritable_directory_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    if not Path("/proc/self").is_dir():
+        pytest.skip("needs /proc")
+    assert main(["plan", str(write(tmp_path, mission_text())), "--out", "/proc/self/fig.png"]) == 2
+    assert "cannot write in '/proc/self'" in capsys.readouterr().err
+
+
+def test_bad_inputs_exit_2_with_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["plan", str(tmp_path / "absent.toml")]) == 2
+    assert capsys.readouterr().err.startswith("pmht-opt: error: cannot read")
+    assert main(["plan", str(write(tmp_path, 'horizon = "300"\n' + BASE.replace("horizon = 40\n", "")))]) == 2
+    assert "m.toml: horizon: expected an integer, got a string ('300')" in capsys.readouterr().err
+    assert main(["plan", "--planner", "fast"]) == 2  # argparse's own usage error
+    assert "invalid choice: 'fast'" in capsys.readouterr().err
+    assert main(["plan"]) == 2
+    assert "give a mission file, or --example NAME" in capsys.readouterr().err
+    assert main(["plan", str(write(tmp_path, mission_text())), "--anneal", "0.001", "5"]) == 2
+    assert "--anneal: anneal: the schedule starts at r = 0.001, not above" in capsys.readouterr().err
+
+
+def test_version_and_help_show_the_defaults(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"pmht-opt {po.__version__}"
+    for command, shown in [
+        ("demo", ["(default: A)", "(default: 0)", "(default: 100)", "(default: pmht-demo-SCENARIO.png)"]),
+        ("plan", ["else pmht)", "else 100)", "else ga)", "else 30)"]),
+        ("order", ["else ga)", "(default: the method's)"]),
+        ("scenario", ["(default: 0)"]),
+    ]:
+        assert main([command, "--help"]) == 0
+        text = " ".join(capsys.readouterr().out.split())
+        for s in shown:
+            assert s in text, (command, s)
+        assert "(default: None)" not in text
+
+
+def test_example_lists_prints_and_copies(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["example"]) == 0
+    assert capsys.readouterr().out.startswith("survey ")
+    assert main(["example", "survey"]) == 0
+    assert "[geo]" in capsys.readouterr().out
+    assert main(["example", "survey", "--out", str(tmp_path / "ex")]) == 0
+    assert sorted(p.name for p in (tmp_path / "ex").iterdir()) == ["survey-sites.csv", "survey.toml"]
+    mission = po.io.load_mission(tmp_path / "ex" / "survey.toml")
+    assert mission.scenario.n_locales == 36
+
+
+def test_missing_bounds_are_announced(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    plan_json(tmp_path, ["plan", str(write(tmp_path, mission_text(planner="iterations = 1")))])
+    assert "bounds: none given; assumed the locales' bounding box [0.5, 3, 1, 3.5]" in capsys.readouterr().out
+
+
+def test_demo_animates_the_iterations(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    gif = tmp_path / "em.gif"
+    code = main(
+        [
+            "demo",
+            "--scenario",
+            "B",
+            "--iterations",
+            "2",
+            "--out",
+            str(tmp_path / "d.png"),
+            "--animate",
+            str(gif),
+        ]
+    )
+    assert code == 0 and gif.read_bytes()[:6] in (b"GIF87a", b"GIF89a")
+    from PIL import Image
+
+    with Image.open(gif) as im:
+        assert im.n_frames >= 3  # the standing start and two iterations (the last one held)
+    assert f"animation: {gif}" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------ real processes
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(Path(__file__).resolve().parents[1]) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+def test_python_dash_m_runs_the_command() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "pmht_opt", "--version"],
+        capture_output=True,
+        text=True,
+        env=_env(),
+        timeout=60,
+    )
+    assert done.returncode == 0 and done.stdout.strip() == f"pmht-opt {po.__version__}"
+
+
+def test_a_closed_pipe_exits_quietly() -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pmht_opt", "example", "survey"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=_env(),
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # the reader goes away before the command writes anything
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) == cli.EXIT_PIPE
+    assert err == ""
+    shell = subprocess.run(
+        f"{sys.executable} -m pmht_opt example survey | head -1",
+        shell=True,
+        capture_output=True,
+        text=True,
+        env=_env(),
+        timeout=60,
+    )
+    assert shell.stdout.startswith("#") and "Traceback" not in shell.stderr and "Error" not in shell.stderr
+
+
+def test_ctrl_c_stops_with_one_line_and_status_130(tmp_path: Path) -> None:
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "pmht_opt",
+            "demo",
+            "--iterations",
+            "100000",
+            "--out",
+            str(tmp_path / "x.png"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=_env(),
+        cwd=tmp_path,
+    )
+    assert proc.stderr is not None
+    os.set_blocking(proc.stderr.fileno(), False)
+    seen = b""
+    deadline = time.monotonic() + 60
+    while b"objective" not in seen and time.monotonic() < deadline:  # the progress bar: planning has begun
+        time.sleep(0.2)
+        seen += proc.stderr.read() or b""
+        if b"objective" not in seen and b"it/s" not in seen and time.monotonic() > deadline - 50:
+            break  # no progress bar (tqdm missing): the plan has surely started by now
+    proc.send_signal(signal.SIGINT)
+    _, rest = proc.communicate(timeout=60)
+    err = (seen + rest).decode()
+    assert proc.returncode == cli.EXIT_INTERRUPTED
+    assert "Traceback" not in err and err.rstrip().splitlines()[-1] == "pmht-opt: interrupted."
+    assert not (tmp_path / "x.png").exists()
+
+
+def _readme_block(after: str) -> list[str]:
+    """The lines of the first ``bash`` block of the README after the heading ``after``."""
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = text[text.index(after) :]
+    block = section[section.index("```bash\n") + len("```bash\n") :]
+    return block[: block.index("```")].strip().splitlines()
+
+
+def test_the_readme_geo_example_runs_as_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    setup_venv, setup_install, run = _readme_block("### A real mission")
+    assert setup_venv.startswith("python3 -m venv .venv") and setup_install == "pip install ."
+    argv = run.split()
+    assert argv[0] == "pmht-opt"
+    monkeypatch.chdir(tmp_path)
+    assert main(argv[1:]) == 0
+    out = tmp_path / "out"
+    assert sorted(p.name for p in out.iterdir()) == [
+        "survey-0.plan",
+        "survey-1.plan",
+        "survey-2.plan",
+        "survey.geojson",
+        "survey.png",
+    ]
+    plan = json.loads((out / "survey-1.plan").read_text())
+    assert plan["fileType"] == "Plan" and plan["mission"]["items"][2]["params"][6] == 60.0
+    features = json.loads((out / "survey.geojson").read_text())["features"]
+    assert sum(f["properties"]["kind"] == "locale" for f in features) == 36
+    # The plan returns to base, at rest, within the speed limit.
+    mission = po.io.example_mission("survey")
+    paths = po.io.read_geojson_paths(out / "survey.geojson", mission.origin)
+    for m, path in enumerate(paths):
+        assert np.hypot(*(path[-1] - mission.scenario.start_positions[m])) < 1e-3
+
+
+def test_the_readme_quick_start_commands() -> None:
+    assert _readme_block("## Quick start") == ["python3 -m venv .venv && . .venv/bin/activate"]
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert "pip install . && pmht-opt demo" in text and 'pip install ".[test]" && python -m pytest -q' in text
+    assert "Python 3.11 or newer" in text and 'pip install ".[ortools]"' in text
+    ignored = (Path(__file__).resolve().parents[1] / ".gitignore").read_text().split()
+    assert "/pmht-demo-*.png" in ignored and "/out/" in ignored
