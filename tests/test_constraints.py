@@ -314,7 +314,8 @@ def test_obstacle_report_counts_cutting_segments() -> None:
     rep = sq.violation(states, ctx)
     assert rep.max_violation == pytest.approx(1.0) and rep.details["segments_entering"] == 1
     # A segment that only grazes a corner: exact depth along it.
-    graze = np.zeros((1, 2, 6))
+    graze = np.zeros((2, 2, 6))
+    graze[1, :, 0] = 9.0  # platform 1 far away
     graze[0, :, 0] = [3.5, 4.5]
     graze[0, :, 3] = [4.5, 3.5]  # crosses the corner (4, 4) at depth 0
     graze_ctx = ConstraintContext(scenario=sc, states=graze)

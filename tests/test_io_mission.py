@@ -89,6 +89,7 @@ def test_each_kind_reads_as_the_library_builds_it(tmp_path: Path, kind: str) -> 
         "vertices",
         "margin",
         "warmup",
+        "ramp",
     ):
         if hasattr(expected, attr):
             a, b = getattr(con, attr), getattr(expected, attr)
@@ -124,7 +125,7 @@ def test_strings_where_numbers_belong_name_the_field(tmp_path: Path, text: str, 
         ),
         (
             'kind = "speed_limit"\nvmax = -1.0',
-            "constraints[0] (speed_limit): SpeedLimit: expected a positive number",
+            "constraints[0] (speed_limit): SpeedLimit: expected a finite positive number",
         ),
         (
             'kind = "speed_limit"\nvmax = 0.1\nsoft = "yes"',

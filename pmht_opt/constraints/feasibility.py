@@ -120,10 +120,11 @@ def _check_visits(
     beyond = np.all(reach > travel[None, :] * (1 + MARGIN), axis=1)
     if np.any(beyond):
         n = int(np.flatnonzero(beyond)[0])
+        m = int(np.argmin(reach[n]))
         raise InfeasibleError(
-            f"{visits.name} and {names} conflict: locale {n} is {float(reach[n].min()):.4g} from the "
-            f"nearest start (beyond its visit radius), further than any platform can travel in the "
-            f"horizon ({float(travel.max()):.4g})."
+            f"{visits.name} and {names} conflict: platform {m}, the nearest, cannot reach locale {n}: it "
+            f"is {float(reach[n, m]):.4g} beyond the visit radius from its start, and the platform travels "
+            f"at most {float(travel[m]):.4g} in the horizon ({int(np.sum(beyond))} locale(s) out of reach)."
         )
     need = covering_length(z, s, rho)
     budget = float(np.sum(travel))

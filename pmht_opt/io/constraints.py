@@ -150,8 +150,8 @@ KINDS: dict[str, Kind] = {
     ),
     "visit_all": Kind(
         VisitAll,
-        {"radius": _number, "warmup": _integer, "sides": _integer},
-        lambda c, f: {"radius": c.radius, "warmup": c.warmup, "sides": c.sides},
+        {"radius": _number, "warmup": _integer, "ramp": _integer, "sides": _integer},
+        lambda c, f: {"radius": c.radius, "warmup": c.warmup, "ramp": c.ramp, "sides": c.sides},
     ),
     "terminal": Kind(
         Terminal,
