@@ -37,6 +37,8 @@ from pmht_opt.schedule import Schedule
 from pmht_opt.smoothed import plan_smoothed
 from pmht_opt.stopping import (
     AnyOf,
+    Converged,
+    EMProgress,
     MaxIterations,
     NoImprovement,
     ObjectiveTolerance,
@@ -56,8 +58,10 @@ __all__ = [
     "ConfigError",
     "Constraint",
     "ConstraintReport",
+    "Converged",
     "CvxpyConstraint",
     "EMCallbacks",
+    "EMProgress",
     "EMRun",
     "EStepSummary",
     "InfeasibleError",

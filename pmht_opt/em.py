@@ -31,7 +31,7 @@ from pmht_opt.planner import PMHTConfig
 from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario
 from pmht_opt.schedule import Schedule
-from pmht_opt.stopping import ObjectiveTolerance, Progress
+from pmht_opt.stopping import Converged, EMProgress, ObjectiveTolerance
 from pmht_opt.verify import verify_plan
 
 
@@ -52,6 +52,8 @@ class IterationRecord:
     fallbacks: int
     mstep_status: solvers.Status
     estep_gated: bool
+    path_change: float = float("inf")
+    assignment_changed: bool = True
 
 
 @dataclass(frozen=True)
@@ -65,6 +67,25 @@ class EMCallbacks:
     after_estep: Callable[[EMRun, EStepResult], None] | None = None
     after_mstep: Callable[[EMRun, MStepOutput], None] | None = None
     after_iteration: Callable[[EMRun, IterationRecord], None] | None = None
+
+
+def with_progress(
+    callbacks: EMCallbacks | None, callback: Callable[[int, float], Any] | None
+) -> EMCallbacks | None:
+    """``callbacks`` with ``callback(iteration, objective)`` also called after every iteration."""
+    if callback is None:
+        return callbacks
+    base = callbacks if callbacks is not None else EMCallbacks()
+    inner = base.after_iteration
+    if not callable(callback):
+        raise ConfigError(f"callback: expected a callable(iteration, objective), got {callback!r}.")
+
+    def after(run: EMRun, record: IterationRecord) -> None:
+        if inner is not None:
+            inner(run, record)
+        callback(record.iteration, record.objective)
+
+    return EMCallbacks(base.after_estep, base.after_mstep, after)
 
 
 def _initial_log_prior(name: str, prior: Any, shape: tuple[int, int]) -> np.ndarray | None:
@@ -143,6 +164,8 @@ class EMRun:
         cfg = config if config is not None else PMHTConfig()
         if not isinstance(cfg, PMHTConfig):
             raise ConfigError(f"config must be a PMHTConfig, got {type(cfg).__name__}.")
+        if callbacks is not None and not isinstance(callbacks, EMCallbacks):
+            raise ConfigError(f"callbacks: expected EMCallbacks, got {type(callbacks).__name__}.")
         N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon
         self.scenario = scenario
         self.config = cfg
@@ -177,6 +200,8 @@ class EMRun:
         self.estep, objective = self._estep(self.states, r0)
         self._initial = (objective, time.perf_counter() - t0, r0, self.estep.gated)
         self._objectives = [objective]
+        self._assignment = self.estep.map_assignment()[0]
+        self._assignment_age = 0
         self._notify(self.callbacks.after_estep, self.estep)
 
     # ------------------------------------------------------------------ the loop
@@ -226,6 +251,7 @@ class EMRun:
         mstep_time = time.perf_counter() - t0
         self.last_context = ctx
         self._notify(self.callbacks.after_mstep, out)
+        path_change = float(np.max(np.abs(out.states[:, :, POS] - self.states[:, :, POS])))
         self.states = out.states
         t0 = time.perf_counter()
         es, objective = self._estep(self.states, r, out.noise)
@@ -236,6 +262,10 @@ class EMRun:
         self.estep = es
         self.iteration = it
         self._objectives.append(objective)
+        assignment = es.map_assignment()[0]
+        changed = bool(np.any(assignment != self._assignment))
+        self._assignment = assignment
+        self._assignment_age = 0 if changed else self._assignment_age + 1
         self._notify(self.callbacks.after_estep, es)
         record = IterationRecord(
             iteration=it,
@@ -247,6 +277,8 @@ class EMRun:
             fallbacks=out.fallbacks,
             mstep_status=out.status,
             estep_gated=es.gated,
+            path_change=path_change,
+            assignment_changed=changed,
         )
         self.records.append(record)
         if it in cfg.snapshots:
@@ -256,11 +288,15 @@ class EMRun:
         return record
 
     def _judge(self, it: int) -> None:
-        progress = Progress(
+        bounds = self.scenario.bounds or (0.0, 1.0, 0.0, 1.0)
+        progress = EMProgress(
             iteration=it,
             scores=[-o for o in self._objectives],
             elapsed=time.perf_counter() - self._started,
             settled=self.schedule.settled_at(self.config.constraints, it),
+            path_change=self.records[-1].path_change,
+            assignment_age=self._assignment_age,
+            scale=max(bounds[1] - bounds[0], bounds[3] - bounds[2], 1e-12),
         )
         for crit in self.criteria:
             if crit(progress):
@@ -278,7 +314,7 @@ class EMRun:
     @property
     def converged(self) -> bool:
         """Whether the run stopped on a convergence test (not on an iteration or time limit)."""
-        return self.stop_reason == ObjectiveTolerance.__name__
+        return self.stop_reason in (ObjectiveTolerance.__name__, Converged.__name__)
 
     def history(self) -> IterationHistory:
         """The per-iteration record so far."""

@@ -196,6 +196,7 @@ def plan_pmht(
     platform_prior: np.ndarray | None = None,
     callback: ProgressCallback | None = None,
     initial_paths: np.ndarray | None = None,
+    callbacks: Any = None,
 ) -> Any:
     """Plan paths for ``scenario`` with the PMHT planner.
 
@@ -208,9 +209,10 @@ def plan_pmht(
     time_prior, platform_prior
         Initial ``pi^tau (N, T)`` and ``pi^k (N, M)``; uniform when ``None``. Rows are normalised.
     callback
-        Called as ``callback(iteration, objective)`` after every iteration (e.g. a progress bar). For
-        more (the E-step, the M-step's answer), use :class:`~pmht_opt.em.EMRun` with
-        :class:`~pmht_opt.em.EMCallbacks`.
+        Called as ``callback(iteration, objective)`` after every iteration (e.g. a progress bar).
+    callbacks
+        Observers of every E-step, M-step and iteration (:class:`~pmht_opt.em.EMCallbacks`); with
+        ``callback`` too, both are called.
     initial_paths
         ``(M, T+1, 6)`` paths the EM starts from (``t = 0`` must be the scenario's start states);
         default: every platform standing still at its start.
@@ -220,13 +222,9 @@ def plan_pmht(
     PlanResult
         Paths, final assignment, per-iteration history, the final E-step and metrics.
     """
-    from pmht_opt.em import EMCallbacks, EMRun
+    from pmht_opt.em import EMRun, with_progress
 
-    callbacks = None
-    if callback is not None:
-        callbacks = EMCallbacks(
-            after_iteration=lambda run, record: callback(record.iteration, record.objective)
-        )
+    callbacks = with_progress(callbacks, callback)
     with EMRun(
         scenario,
         config,

@@ -21,7 +21,7 @@ from pmht_opt.constraints.base import ConstraintContext, ConstraintReport
 from pmht_opt.constraints.blocks import DEFAULT_SIDES, Block
 from pmht_opt.constraints.params import positive_number
 from pmht_opt.constraints.visits import VisitAll
-from pmht_opt.em import EMCallbacks, EMRun
+from pmht_opt.em import EMCallbacks, EMRun, with_progress
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.model import POS, STATE_DIM, VEL
 from pmht_opt.ordering.tour import TourResult, check_routes
@@ -140,6 +140,7 @@ def plan_smoothed(
     split: str = "equal",
     sides: int = DEFAULT_SIDES,
     callback: ProgressCallback | None = None,
+    callbacks: EMCallbacks | None = None,
 ) -> PlanResult:
     """Smooth paths that pass every locale in the order of ``tour`` (GA-TSP PMHT smoothed).
 
@@ -164,6 +165,8 @@ def plan_smoothed(
         Sides of the inner polygon standing in for the visit disc on a backend without cones.
     callback
         Called as ``callback(iteration, objective)`` after every iteration.
+    callbacks
+        Observers of the EM run (:class:`~pmht_opt.em.EMCallbacks`).
 
     Returns
     -------
@@ -202,18 +205,13 @@ def plan_smoothed(
         time_prior[n, lo - 1 : hi] = 1.0
     platform_prior = np.zeros((N, M))
     platform_prior[np.arange(N), platform] = 1.0
-    callbacks = None
-    if callback is not None:
-        callbacks = EMCallbacks(
-            after_iteration=lambda run, record: callback(record.iteration, record.objective)
-        )
     with EMRun(
         scenario,
         run_cfg,
         time_prior=time_prior,
         platform_prior=platform_prior,
         initial_paths=_polyline_start(scenario, routes, windows),
-        callbacks=callbacks,
+        callbacks=with_progress(callbacks, callback),
     ) as run:
         result = run.run()
         ctx = run.last_context

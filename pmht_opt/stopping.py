@@ -43,6 +43,25 @@ class Progress:
     settled: bool = True
 
 
+@dataclass(frozen=True)
+class EMProgress(Progress):
+    """What a stopping criterion sees after an EM iteration, beyond :class:`Progress`.
+
+    Attributes
+    ----------
+    path_change
+        Largest distance any position moved in the last iteration.
+    assignment_age
+        Iterations since the MAP platform of some locale last changed (0: it changed in the last one).
+    scale
+        The size of the scenario's area, which path changes are judged against.
+    """
+
+    path_change: float = float("inf")
+    assignment_age: int = 0
+    scale: float = 1.0
+
+
 @runtime_checkable
 class StoppingCriterion(Protocol):
     """``criterion(progress) -> bool``: stop after the iteration ``progress`` describes."""
@@ -136,6 +155,27 @@ class NoImprovement:
         if not progress.settled or len(scores) <= k:
             return False
         return min(scores[-k:]) >= min(scores[:-k])
+
+
+@dataclass(frozen=True)
+class Converged:
+    """Stop once the plan has stopped changing: in the final regime, no locale has changed platform for
+    ``stable`` iterations and no position moved more than ``path_rtol`` times the area's size in the
+    last one. For the EM only (it reads :class:`EMProgress`); other progress never stops it."""
+
+    path_rtol: float = 1e-4
+    stable: int = 5
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "path_rtol", _non_negative("Converged.path_rtol", self.path_rtol))
+        _positive_int("Converged.stable", self.stable)
+
+    def __call__(self, progress: Progress) -> bool:
+        if not isinstance(progress, EMProgress) or not progress.settled:
+            return False
+        return (
+            progress.assignment_age >= self.stable and progress.path_change <= self.path_rtol * progress.scale
+        )
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ STUDIES: dict[str, tuple[str, str]] = {
     "solvers": ("studies.compare_solvers", "M-step backends against the kalman reference: time, gaps"),
     "scaling": ("studies.scaling", "plan time and peak memory as locales, horizon and platforms grow"),
     "anneal": ("studies.anneal", "plain against annealed EM with both time-prior settings"),
+    "convergence": ("studies.convergence", "when the EM can stop: stopping rules replayed on full runs"),
 }
 
 

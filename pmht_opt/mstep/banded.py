@@ -44,13 +44,13 @@ class BandedMStep(MStep):
     def _solve(self, data: MStepData) -> MStepOutput:
         res = self.smooth(data)
         return MStepOutput(
-            states=_states(res.means),
+            states=axis_states(res.means),
             status=solvers.Status.OPTIMAL,
             raw_status="exact",
-            noise=_states(res.noise),
+            noise=axis_states(res.noise),
         )
 
 
-def _states(arr: np.ndarray) -> np.ndarray:
+def axis_states(arr: np.ndarray) -> np.ndarray:
     """``(M, T', 3, 2)`` per-axis arrays as ``(M, T', 6)`` states ``[px, vx, ax, py, vy, ay]``."""
     return np.concatenate([arr[..., 0], arr[..., 1]], axis=2)

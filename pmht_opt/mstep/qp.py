@@ -10,13 +10,17 @@ import numpy as np
 import solvers
 from pmht_opt.constraints.base import Constraint
 from pmht_opt.exceptions import InfeasibleError, PmhtOptError, SolverError, UnknownSolverError
-from pmht_opt.model import STATE_DIM
+from pmht_opt.mstep.banded import axis_states
 from pmht_opt.mstep.base import MStep, MStepData, MStepOutput
 from pmht_opt.mstep.diagnosis import diagnose
 from pmht_opt.mstep.platform import PlatformQP
 from pmht_opt.mstep.rows import PlatformRows, RowBuilder
 from pmht_opt.mstep.tuning import CONSTRAINED_DEFAULTS, DEFAULTS, RETRIES, cvxpy_defaults, cvxpy_retries
 from pmht_opt.scenario import Scenario
+
+#: Largest violation of a platform's rows by the exact unconstrained optimum for it to be taken as the
+#: constrained optimum without a solve (rounding of positions of order 10 is far below it).
+SCREEN_TOL = 1e-10
 
 
 def check_solution(sol: solvers.QPSolution, accept_inaccurate: bool, platform: int | None = None) -> None:
@@ -58,9 +62,12 @@ class QPMStep(MStep):
         solver: str = "clarabel",
         threads: int = 1,
         constraints: tuple[Constraint, ...] = (),
+        exact_unconstrained: bool = False,
     ) -> None:
         super().__init__(scenario, settings, accept_inaccurate, constraints)
         self.solver = solver
+        #: Whether platforms without constraint rows take the exact smoother's answer (solver "auto").
+        self.exact_unconstrained = exact_unconstrained
         try:
             self.session_class = solvers.get_session_class(solver)
         except solvers.UnknownSolverError as err:
@@ -100,13 +107,24 @@ class QPMStep(MStep):
 
     def _solve(self, data: MStepData) -> MStepOutput:
         rows = self.rows.rows(data.ctx, data.active, data.strengths)
-        # A platform with no weight and no constraint has the unique answer u = 0 (it coasts from its
-        # start); first-order solvers struggle on this degenerate QP (its dual residual has no scale),
-        # so the answer is written down instead of solved for.
+        exact = self.reference().smooth(data)
+        exact_states = self._with_start(axis_states(exact.means[:, 1:]))
+        # Where the exact unconstrained optimum already meets a platform's rows it is that platform's
+        # constrained optimum too: no solve. Without rows it is the answer outright when the exact
+        # smoother stands in for unconstrained platforms (solver "auto"); a platform with no weight and
+        # no row coasts, the unique answer, which first-order solvers struggle to return.
         idle = ~np.any(data.W > 0, axis=0)
-        for m in rows:
-            idle[m] = False
-        active = [int(m) for m in np.flatnonzero(~idle)]
+        exact_ok = np.zeros(self.M, dtype=bool)
+        for m in range(self.M):
+            items = rows[m].items if m in rows else []
+            if items:
+                z = exact_states[m, 1:].reshape(-1)
+                exact_ok[m] = all(
+                    float(np.max(i.block.residual(z), initial=0.0)) <= SCREEN_TOL for i in items
+                )
+            else:
+                exact_ok[m] = self.exact_unconstrained or bool(idle[m])
+        active = [int(m) for m in np.flatnonzero(~exact_ok)]
 
         def one(m: int) -> tuple[solvers.QPSolution, np.ndarray | None, np.ndarray | None]:
             return self.blocks[m].solve(data.W[:, m], data.WZ[:, m], data.r, rows.get(m))
@@ -117,10 +135,8 @@ class QPMStep(MStep):
             answers = list(self._pool.map(one, active))
         else:
             answers = [one(m) for m in active]
-        body = np.empty((self.M, self.T, STATE_DIM))
-        noise = np.zeros((self.M, self.T, STATE_DIM))
-        for m in np.flatnonzero(idle).tolist():
-            body[m] = self.model.propagate(self.x0[m], self.T)[1:]
+        body = exact_states[:, 1:].copy()
+        noise = axis_states(exact.noise)
         for m, (sol, states, u) in zip(active, answers, strict=True):
             platform_rows = rows.get(m)
             failed = not sol.usable(self.accept_inaccurate)
@@ -136,6 +152,7 @@ class QPMStep(MStep):
             fallbacks=sum("fallback" in s.info for s in sols),
             noise=noise,
             constrained=tuple(sorted(m for m, r in rows.items() if r.items)),
+            info={"exact": exact, "solved": tuple(active)},
         )
         if sols:
             worst = max(sols, key=lambda s: (s.status is not solvers.Status.OPTIMAL, s.iterations))

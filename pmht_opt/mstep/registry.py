@@ -120,7 +120,8 @@ def make_mstep(
     constraints: tuple[Constraint, ...] = (),
 ) -> MStep:
     """Build the M-step backend ``solver`` for ``scenario``, checked against its constraints."""
-    key = resolve(check_backend(solver), constraints)
+    asked = check_backend(solver)
+    key = resolve(asked, constraints)
     check_constraints(key, constraints)
     if key in ("banded", "kalman") and settings:
         raise ConfigError(f"solver_settings: the {key} backend takes none, got {sorted(settings)}.")
@@ -139,5 +140,11 @@ def make_mstep(
     from pmht_opt.mstep.qp import QPMStep
 
     return QPMStep(
-        scenario, settings, accept_inaccurate, solver=key, threads=threads, constraints=tuple(constraints)
+        scenario,
+        settings,
+        accept_inaccurate,
+        solver=key,
+        threads=threads,
+        constraints=tuple(constraints),
+        exact_unconstrained=asked == "auto",
     )

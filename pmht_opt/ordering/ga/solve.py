@@ -241,14 +241,13 @@ class _Evolution:
         self.patience = params.restart_policy.patience(N, self.layout.G)
         moves = ops.moves
         # Per distinct move, the slots it fills (the first one computed, the others copied).
-        self.slots_of_move = [
-            [s for s, slot in enumerate(ops.slots) if slot.move == move] for move in moves
-        ]
+        self.slots_of_move = [[s for s, slot in enumerate(ops.slots) if slot.move == move] for move in moves]
         self.parent_slots = _slots(ops, Breaks.PARENT)
         self.fresh_slots = _slots(ops, Breaks.FRESH)
         self.n_fresh = int(np.arange(group)[self.fresh_slots].size)
-        self.moved_slots = [(s, moves.index(slot.move)) for s, slot in enumerate(ops.slots)
-                            if slot.breaks is Breaks.MOVED]
+        self.moved_slots = [
+            (s, moves.index(slot.move)) for s, slot in enumerate(ops.slots) if slot.breaks is Breaks.MOVED
+        ]
         self.pop, self.heads = random_population(rng, P, N, M, params.min_tour)
         # Child s of group g reads parent row g at idx[g, s, k]; offsets g * N make that one gather.
         self.groups = np.arange(self.layout.G)

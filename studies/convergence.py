@@ -1,0 +1,240 @@
+"""Study: when can the EM stop? A stopping rule on the assignment and the paths, chosen by measurement.
+
+Every trial runs the planner's full 100 iterations and records, after each iteration, the signals a
+stopping rule can use (the largest position change, whether any locale changed platform, whether the
+run is in its final regime) and what a user cares about (total distance and coverage at the scenario's
+radius). The analysis then replays candidate rules :class:`pmht_opt.Converged` (``path_rtol``,
+``stable``) on the recorded runs: for each, the iteration it would stop at and how far the distance and
+coverage there are from those after 100 iterations. The rule adopted as the default is the one that
+stops soonest while changing nothing a user cares about (docs/decisions.md).
+
+    pmht-opt study convergence --workers 2 --out studies/results/convergence
+    python studies/convergence.py [--trials 100] [--configs default visitall-0.3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pmht_opt.constraints import VisitAll
+from pmht_opt.em import EMCallbacks, EMRun, IterationRecord
+from pmht_opt.exceptions import ConfigError
+from pmht_opt.geometry import point_polyline_distance
+from pmht_opt.model import POS
+from pmht_opt.ordering import order_locales
+from pmht_opt.planner import PMHTConfig
+from pmht_opt.scenario import paper_scenario
+from pmht_opt.smoothed import plan_smoothed
+from studies.options import RunOptions, positive_int
+from studies.report import frame, write_summary
+from studies.store import Schema
+from studies.trials import Check, TrialTable, run_trials
+
+KINDS = ("A", "B", "C")
+CONFIGS = ("default", "visitall-0.3", "smoothed-0.3")
+#: Candidate rules replayed on the recorded runs: ``(path_rtol, stable)``.
+CANDIDATES = tuple((tol, k) for tol in (3e-3, 1e-3, 3e-4, 1e-4, 1e-5) for k in (3, 5, 10))
+
+
+def _config(name: str) -> PMHTConfig:
+    constraints = [VisitAll(0.3)] if name == "visitall-0.3" else []
+    return PMHTConfig(max_iter=100, threads=1, constraints=constraints)
+
+
+def trial(kind: str, seed: int, config: str) -> dict[str, Any]:
+    """One 100-iteration plan, with the stopping signals and the metrics after every iteration."""
+    sc = paper_scenario(kind, seed=seed)
+    cfg = _config(config)
+    signals: dict[str, list[Any]] = {
+        "path_change": [],
+        "changed": [],
+        "settled": [],
+        "distance": [],
+        "coverage": [],
+    }
+
+    def after(run: EMRun, rec: IterationRecord) -> None:
+        pos = run.states[:, :, POS]
+        seg = np.diff(pos, axis=1)
+        miss = np.min([point_polyline_distance(sc.locales, pos[m]) for m in range(pos.shape[0])], axis=0)
+        signals["path_change"].append(rec.path_change)
+        signals["changed"].append(rec.assignment_changed)
+        signals["settled"].append(run.schedule.settled_at(cfg.constraints, rec.iteration))
+        signals["distance"].append(float(np.hypot(seg[..., 0], seg[..., 1]).sum()))
+        signals["coverage"].append(float(np.mean(miss <= sc.coverage_radius * (1 + 1e-6))))
+
+    callbacks = EMCallbacks(after_iteration=after)
+    if config == "smoothed-0.3":
+        tour = order_locales(sc, "pyvrp", seed=seed)
+        plan_smoothed(sc, tour, PMHTConfig(max_iter=100, threads=1), visit_radius=0.3, callbacks=callbacks)
+    else:
+        with EMRun(sc, cfg, callbacks=callbacks) as run:
+            run.run()
+    return {**signals, "scale": 10.0}
+
+
+TABLE = TrialTable(
+    name="convergence",
+    fn=trial,
+    schema=Schema(
+        params={"kind": "str", "seed": "int", "config": "str"},
+        values={
+            "path_change": "list",
+            "changed": "list",
+            "settled": "list",
+            "distance": "list",
+            "coverage": "list",
+            "scale": "float",
+        },
+    ),
+    checks={
+        "path_change": Check("close", rtol=1e-6, atol=1e-9, reason="last-digit differences of the solver")
+    },
+)
+
+
+def stop_iteration(row: Mapping[str, Any], path_rtol: float, stable: int) -> int:
+    """The iteration (1-based) at which :class:`pmht_opt.Converged` would stop this recorded run."""
+    age = 0
+    for i, (change, changed, settled) in enumerate(
+        zip(row["path_change"], row["changed"], row["settled"], strict=True)
+    ):
+        age = 0 if changed else age + 1
+        if settled and age >= stable and change <= path_rtol * row["scale"]:
+            return i + 1
+    return len(row["path_change"])
+
+
+def replay(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Per (scenario, configuration, candidate rule): iterations saved and what changes against 100."""
+    df = frame(rows)
+    df = df[df["error"] == ""]
+    out = []
+    for (kind, config), group in df.groupby(["kind", "config"]):
+        recs = group.to_dict("records")
+        for tol, k in CANDIDATES:
+            stops = np.array([stop_iteration(r, tol, k) for r in recs])
+            d_rel = np.array(
+                [
+                    abs(r["distance"][s - 1] - r["distance"][-1]) / r["distance"][-1]
+                    for r, s in zip(recs, stops, strict=True)
+                ]
+            )
+            d_cov = np.array(
+                [r["coverage"][s - 1] - r["coverage"][-1] for r, s in zip(recs, stops, strict=True)]
+            )
+            out.append(
+                {
+                    "scenario": kind,
+                    "config": config,
+                    "path_rtol": tol,
+                    "stable": k,
+                    "trials": len(recs),
+                    "mean_iterations": float(stops.mean()),
+                    "max_iterations": int(stops.max()),
+                    "mean_rel_distance_change": float(d_rel.mean()),
+                    "max_rel_distance_change": float(d_rel.max()),
+                    "max_coverage_change": float(np.abs(d_cov).max()),
+                    "trials_coverage_changed": int(np.sum(d_cov != 0)),
+                }
+            )
+    return out
+
+
+def markdown(table: Sequence[Mapping[str, Any]]) -> str:
+    """The replay as a markdown table."""
+    lines = [
+        "| scenario | configuration | path_rtol | stable | mean iterations | max | mean rel. distance change "
+        "| max | max coverage change | trials with coverage changed |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for s in table:
+        cells = (
+            s["scenario"],
+            s["config"],
+            f"{s['path_rtol']:g}",
+            s["stable"],
+            f"{s['mean_iterations']:.1f}",
+            s["max_iterations"],
+            f"{s['mean_rel_distance_change']:.2e}",
+            f"{s['max_rel_distance_change']:.2e}",
+            f"{s['max_coverage_change']:.3f}",
+            s["trials_coverage_changed"],
+        )
+        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of ``pmht-opt study convergence``."""
+
+    trials: int = 100
+    configs: tuple[str, ...] = CONFIGS
+    kinds: tuple[str, ...] = KINDS
+
+    def __post_init__(self) -> None:
+        positive_int("--trials", self.trials)
+        for name, values, known in (("--configs", self.configs, CONFIGS), ("--kinds", self.kinds, KINDS)):
+            bad = [v for v in values if v not in known]
+            if bad or not values:
+                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
+
+    @staticmethod
+    def add_arguments(p: argparse.ArgumentParser) -> None:
+        """The command-line options of this study."""
+        p.add_argument("--trials", type=int, default=100, help="trials per scenario and configuration")
+        p.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> Options:
+        """The options from parsed arguments."""
+        return cls(int(ns.trials), tuple(ns.configs), tuple(ns.kinds))
+
+
+def params(options: Options) -> list[dict[str, Any]]:
+    """The trials of a run."""
+    return [
+        {"kind": k, "seed": s, "config": c}
+        for c in options.configs
+        for k in options.kinds
+        for s in range(options.trials)
+    ]
+
+
+def main(run: RunOptions, options: Options) -> list[Path]:
+    """Run the study into ``run.out``: ``convergence.jsonl``, the replay summary and its table."""
+    out = run.prepare()
+    with run.executor() as ex:
+        rows = run_trials(
+            TABLE,
+            params(options),
+            out,
+            executor=ex,
+            progress=not run.quiet,
+            label="convergence",
+            resume=not run.fresh,
+        )
+    table = replay(rows)
+    text = markdown(table)
+    if not run.quiet:
+        print(text)
+    return [TABLE.path(out), *write_summary(out, "convergence", table, text)]
+
+
+if __name__ == "__main__":
+    from studies.cli import main as cli_main
+
+    sys.exit(
+        cli_main(
+            ["convergence", "--out", str(Path(__file__).parent / "results" / "convergence"), *sys.argv[1:]]
+        )
+    )
