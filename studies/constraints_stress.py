@@ -1,0 +1,417 @@
+"""Study: do the constraints hold, whatever the user asks? Sweeps from generous to infeasible, every backend.
+
+Each trial plans one scenario under one constraint case with one backend and sorts the outcome into
+
+- ``solved``: a plan came back. The study then measures every hard constraint *again* on the returned
+  positions, with its own geometry (below), independent of both the solver and the planner's own
+  verification, and records the worst violation relative to the constraint's size;
+- ``infeasible``: :class:`~pmht_opt.InfeasibleError`, which must name a constraint;
+- ``failed``: any other :class:`~pmht_opt.PmhtOptError` (a solver that gave up, a plan that failed its
+  verification).
+
+Cases (``CASES``) sweep speed limits (generous to very tight; starts at rest keep them feasible),
+acceleration limits, a circular and a square keep-out zone of growing size placed where no platform
+starts, guaranteed visits of shrinking radius, and combinations with a known answer: a speed limit that
+leaves far too little travel for the visits, and a visit disc inside an obstacle (both infeasible).
+Scenarios: the paper's A, B, C (seed 0) and an irregular one, ``L``: 40 locales along the two arms of an
+L, two platforms starting at its inside corner, ``T = 300``.
+
+The independent measurements, all on the positions ``p_t`` (``t = 0..T``):
+
+- speed: ``max_t |p_t - p_{t-1}| / dt`` against ``vmax`` (the displacement per step, what a user measures);
+- acceleration: ``max_t |p_{t+1} - 2 p_t + p_{t-1}| / dt^2`` against ``amax``;
+- keep-out zones: every *segment* between consecutive positions against the true disc or square
+  (segment-to-centre distance; a separating-axis test for the square), the depth of the worst entry;
+- visits: each locale's distance to the nearest platform's path (segments) against the radius;
+- area bounds: positions outside the box.
+
+A violation counts when it exceeds the planner's stated tolerance for the backend
+(:data:`pmht_opt.verify.RTOL`) times the constraint's size (the limit, the radius).
+
+    pmht-opt study constraints_stress --workers 2 --out studies/results/constraints_stress
+    python studies/constraints_stress.py [--backends clarabel osqp cvxpy] [--kinds A B C L]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import pmht_opt as po
+from pmht_opt.exceptions import ConfigError
+from pmht_opt.geometry import point_polyline_distance
+from pmht_opt.verify import RTOL
+from studies.options import RunOptions
+from studies.report import frame, write_summary
+from studies.store import Schema
+from studies.trials import Check, TrialTable, run_trials
+
+KINDS = ("A", "B", "C", "L")
+BACKENDS = ("clarabel", "osqp", "cvxpy")
+
+
+def l_shaped() -> po.Scenario:
+    """The irregular scenario: 40 locales on the arms of an L, two platforms at its inside corner."""
+    arm1 = np.column_stack([np.linspace(0.0, 9.0, 20), np.zeros(20)])
+    arm2 = np.column_stack([np.zeros(20), np.linspace(0.5, 9.5, 20)])
+    locales = np.vstack([arm1, arm2]) + 0.5
+    return po.Scenario(
+        locales=locales, starts=[[5.0, 5.0], [6.0, 6.0]], horizon=300, bounds=(0.0, 10.0, 0.0, 10.0), name="L"
+    )
+
+
+def scenario(kind: str) -> po.Scenario:
+    """Scenario ``kind``: the paper's A, B or C with seed 0, or the L-shaped one."""
+    return l_shaped() if kind == "L" else po.paper_scenario(kind, seed=0)
+
+
+def free_spot(sc: po.Scenario) -> tuple[np.ndarray, float]:
+    """The point of a 9 x 9 grid over the area farthest from every start, and that distance."""
+    b = sc.bounds or (0.0, 10.0, 0.0, 10.0)
+    gx, gy = np.meshgrid(np.linspace(b[0], b[1], 9), np.linspace(b[2], b[3], 9))
+    grid = np.column_stack([gx.ravel(), gy.ravel()])
+    starts = sc.initial_states[:, [0, 3]]
+    d = np.min(np.linalg.norm(grid[:, None, :] - starts[None, :, :], axis=2), axis=1)
+    i = int(np.argmax(d))
+    return grid[i], float(d[i])
+
+
+def _square(center: np.ndarray, half: float) -> np.ndarray:
+    c = np.asarray(center, dtype=float)
+    return c + half * np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+
+
+def _locale_obstacle(sc: po.Scenario) -> list[po.Constraint]:
+    """A disc of radius 0.5 around the locale farthest from every start, with every locale visited."""
+    starts = sc.initial_states[:, [0, 3]]
+    d = np.min(np.linalg.norm(sc.locales[:, None, :] - starts[None, :, :], axis=2), axis=1)
+    n = int(np.argmax(d))
+    return [po.CircleObstacle(sc.locales[n], min(0.5, 0.5 * float(d[n]))), po.VisitAll(0.05)]
+
+
+def _obstacle(shape: str, fraction: float) -> Callable[[po.Scenario], list[po.Constraint]]:
+    def build(sc: po.Scenario) -> list[po.Constraint]:
+        center, room = free_spot(sc)
+        size = fraction * room
+        if shape == "circle":
+            return [po.CircleObstacle(center, size)]
+        return [po.PolygonObstacle(_square(center, size / np.sqrt(2.0)))]
+
+    return build
+
+
+def _const(*cons: Callable[[], po.Constraint]) -> Callable[[po.Scenario], list[po.Constraint]]:
+    return lambda sc: [c() for c in cons]
+
+
+@dataclass(frozen=True)
+class Case:
+    """A constraint case: how to build it for a scenario, and whether it is feasible (``None``: unknown)."""
+
+    build: Callable[[po.Scenario], list[po.Constraint]]
+    feasible: bool | None
+
+
+CASES: dict[str, Case] = {
+    "speed-0.5": Case(_const(lambda: po.SpeedLimit(0.5)), True),
+    "speed-0.1": Case(_const(lambda: po.SpeedLimit(0.1)), True),
+    "speed-0.05": Case(_const(lambda: po.SpeedLimit(0.05)), True),
+    "speed-0.02": Case(_const(lambda: po.SpeedLimit(0.02)), True),
+    "speed-1e-3": Case(_const(lambda: po.SpeedLimit(1e-3)), True),
+    "accel-1e-2": Case(_const(lambda: po.AccelLimit(1e-2)), True),
+    "accel-1e-3": Case(_const(lambda: po.AccelLimit(1e-3)), True),
+    "accel-1e-5": Case(_const(lambda: po.AccelLimit(1e-5)), True),
+    "accel-1e-9": Case(_const(lambda: po.AccelLimit(1e-9)), True),
+    "circle-0.25": Case(_obstacle("circle", 0.25), True),
+    "circle-0.5": Case(_obstacle("circle", 0.5), True),
+    "circle-0.9": Case(_obstacle("circle", 0.9), True),
+    "square-0.5": Case(_obstacle("square", 0.5), True),
+    "square-0.9": Case(_obstacle("square", 0.9), True),
+    "visit-0.5": Case(_const(lambda: po.VisitAll(0.5)), True),
+    "visit-0.3": Case(_const(lambda: po.VisitAll(0.3)), True),
+    "visit-0.1": Case(_const(lambda: po.VisitAll(0.1)), True),
+    "visit-0.05": Case(_const(lambda: po.VisitAll(0.05)), True),
+    "speed-0.2+visit-0.1": Case(_const(lambda: po.SpeedLimit(0.2), lambda: po.VisitAll(0.1)), None),
+    "speed-0.1+area": Case(
+        lambda sc: [po.SpeedLimit(0.1), po.AreaBounds(*(sc.bounds or (0, 10, 0, 10)))], True
+    ),
+    "speed-1e-4+visit-0.05": Case(_const(lambda: po.SpeedLimit(1e-4), lambda: po.VisitAll(0.05)), False),
+    "obstacle-on-locale+visit": Case(_locale_obstacle, False),
+}
+
+
+# -- independent measurements ----------------------------------------------------------------------
+
+
+def _segment_point_distance(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Distance from point ``c`` to each segment ``a[i] b[i]``."""
+    ab = b - a
+    denom = np.einsum("ij,ij->i", ab, ab)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = np.where(denom > 0, np.einsum("ij,ij->i", c - a, ab) / denom, 0.0)
+    s = np.clip(s, 0.0, 1.0)
+    return np.linalg.norm(a + s[:, None] * ab - c, axis=1)
+
+
+def _segment_polygon_depth(a: np.ndarray, b: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """How deep each segment ``a[i] b[i]`` reaches into the convex polygon (0 if it stays outside).
+
+    Separating axes: the polygon's edge normals and the segment's normal. The depth is the smallest
+    overlap of the projections over those axes (0 when one of them separates).
+    """
+    axes = []
+    k = len(poly)
+    for i in range(k):
+        e = poly[(i + 1) % k] - poly[i]
+        axes.append(np.broadcast_to(np.array([-e[1], e[0]]) / np.linalg.norm(e), a.shape))
+    seg = b - a
+    length = np.linalg.norm(seg, axis=1, keepdims=True)
+    normal = np.where(length > 0, np.column_stack([-seg[:, 1], seg[:, 0]]) / np.maximum(length, 1e-300), 0.0)
+    axes.append(normal)
+    depth = np.full(a.shape[0], np.inf)
+    for ax in axes:
+        pa, pb = np.einsum("ij,ij->i", a, ax), np.einsum("ij,ij->i", b, ax)
+        pp = poly @ ax.T  # (k, S)
+        overlap = np.minimum(np.maximum(pa, pb), pp.max(axis=0)) - np.maximum(
+            np.minimum(pa, pb), pp.min(axis=0)
+        )
+        depth = np.minimum(depth, overlap)
+    return np.maximum(depth, 0.0)
+
+
+def measure(sc: po.Scenario, positions: np.ndarray, constraints: Sequence[po.Constraint]) -> dict[str, float]:
+    """Each hard constraint's worst violation on ``positions`` ``(M, T+1, 2)``, relative to its size."""
+    out: dict[str, float] = {}
+    dt = sc.dt
+    a, b = positions[:, :-1].reshape(-1, 2), positions[:, 1:].reshape(-1, 2)
+    for con in constraints:
+        if con.soft:
+            continue
+        if isinstance(con, po.SpeedLimit):
+            vmax = float(np.asarray(con.limit).min())
+            step = np.linalg.norm(np.diff(positions, axis=1), axis=2) / dt
+            value = float(step.max() - vmax) / vmax
+        elif isinstance(con, po.AccelLimit):
+            amax = float(np.asarray(con.limit).min())
+            acc = np.linalg.norm(np.diff(positions, 2, axis=1), axis=2) / dt**2
+            value = float(acc.max() - amax) / amax
+        elif isinstance(con, po.CircleObstacle):
+            keep_out = con.radius + con.margin
+            d = _segment_point_distance(a, b, np.asarray(con.center, dtype=float))
+            value = float(keep_out - d.min()) / keep_out
+        elif isinstance(con, po.PolygonObstacle):
+            poly = np.asarray(con.vertices, dtype=float)
+            size = float(np.max(np.linalg.norm(poly - poly.mean(axis=0), axis=1)))
+            value = float(_segment_polygon_depth(a, b, poly).max()) / size
+        elif isinstance(con, po.VisitAll):
+            radius = con.radius if con.radius is not None else sc.coverage_radius
+            miss = np.min([point_polyline_distance(sc.locales, p) for p in positions], axis=0)
+            value = float(miss.max() - radius) / radius
+        elif isinstance(con, po.AreaBounds):
+            lo = np.array([con.box[0], con.box[2]])
+            hi = np.array([con.box[1], con.box[3]])
+            size = float(np.max(hi - lo))
+            value = float(np.max(np.maximum(lo - positions, positions - hi))) / size
+        else:  # pragma: no cover - every case above uses these kinds
+            continue
+        out[con.name] = max(out.get(con.name, -np.inf), value)
+    return out
+
+
+def trial(kind: str, case: str, backend: str) -> dict[str, Any]:
+    """Plan ``kind`` under ``case`` with ``backend``; the outcome and the independent measurements."""
+    sc = scenario(kind)
+    constraints = CASES[case].build(sc)
+    cfg = po.PMHTConfig(solver=backend, constraints=constraints, threads=1)
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"raised": "", "message": "", "violation": -1.0, "worst": "", "distance": 0.0}
+    try:
+        res = po.plan_pmht(sc, cfg)
+    except po.InfeasibleError as err:
+        row.update(outcome="infeasible", raised=type(err).__name__, message=str(err)[:300])
+    except po.PmhtOptError as err:
+        row.update(outcome="failed", raised=type(err).__name__, message=str(err)[:300])
+    else:
+        measured = measure(sc, res.positions, constraints)
+        worst = max(measured, key=lambda k: measured[k])
+        row.update(
+            outcome="solved",
+            violation=max(measured[worst], 0.0),
+            worst=worst,
+            distance=res.total_distance,
+            coverage=res.coverage(),
+            excursion=res.max_excursion(),
+        )
+    row["seconds"] = time.perf_counter() - t0
+    row.setdefault("coverage", 0.0)
+    row.setdefault("excursion", 0.0)
+    row["tolerance"] = RTOL.get(backend, 1e-6)
+    feasible = CASES[case].feasible
+    row["expected"] = "unknown" if feasible is None else ("feasible" if feasible else "infeasible")
+    return row
+
+
+TABLE = TrialTable(
+    name="constraints_stress",
+    fn=trial,
+    schema=Schema(
+        params={"kind": "str", "case": "str", "backend": "str"},
+        values={
+            "outcome": "str",
+            "expected": "str",
+            "raised": "str",
+            "message": "str",
+            "violation": "float",
+            "worst": "str",
+            "tolerance": "float",
+            "distance": "float",
+            "coverage": "float",
+            "excursion": "float",
+            "seconds": "float",
+        },
+    ),
+    checks={
+        "seconds": Check("skip", reason="wall time"),
+        "violation": Check("close", rtol=1e-3, atol=1e-9, reason="last digits of the solvers' iterates"),
+        "distance": Check("close", rtol=1e-6, atol=1e-9, reason="last digits of the solvers' iterates"),
+        "excursion": Check("close", rtol=1e-6, atol=1e-9, reason="last digits of the solvers' iterates"),
+        "message": Check("skip", reason="figures in messages carry the solvers' last digits"),
+    },
+)
+
+
+def summarise(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Per backend and expected answer: counts of each outcome, violations past tolerance, time."""
+    df = frame(rows)
+    df = df[df["error"] == ""]
+    out = []
+    for (backend, expected), g in df.groupby(["backend", "expected"]):
+        solved = g[g["outcome"] == "solved"]
+        out.append(
+            {
+                "backend": backend,
+                "expected": expected,
+                "plans": len(g),
+                "solved": len(solved),
+                "infeasible_named": int((g["outcome"] == "infeasible").sum()),
+                "failed": int((g["outcome"] == "failed").sum()),
+                "violations_past_tolerance": int((solved["violation"] > solved["tolerance"]).sum()),
+                "max_violation": float(solved["violation"].max()) if len(solved) else 0.0,
+                "median_seconds": float(g["seconds"].median()),
+                "max_seconds": float(g["seconds"].max()),
+                "failures": "; ".join(
+                    f"{r.kind}/{r.case}: {r.raised}" for r in g[g["outcome"] == "failed"].itertuples()
+                ),
+            }
+        )
+    return out
+
+
+def markdown(table: Sequence[Mapping[str, Any]]) -> str:
+    """The summary as a markdown table."""
+    lines = [
+        "| backend | expected | plans | solved | infeasible named | failed | violations past tolerance "
+        "| max rel. violation | median s | max s | failures |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for s in table:
+        cells = (
+            s["backend"],
+            s["expected"],
+            s["plans"],
+            s["solved"],
+            s["infeasible_named"],
+            s["failed"],
+            s["violations_past_tolerance"],
+            f"{s['max_violation']:.2e}",
+            f"{s['median_seconds']:.1f}",
+            f"{s['max_seconds']:.1f}",
+            s["failures"] or "-",
+        )
+        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of ``pmht-opt study constraints_stress``."""
+
+    backends: tuple[str, ...] = BACKENDS
+    kinds: tuple[str, ...] = KINDS
+    cases: tuple[str, ...] = tuple(CASES)
+
+    def __post_init__(self) -> None:
+        for name, values, known in (
+            ("--backends", self.backends, BACKENDS),
+            ("--kinds", self.kinds, KINDS),
+            ("--cases", self.cases, tuple(CASES)),
+        ):
+            bad = [v for v in values if v not in known]
+            if bad or not values:
+                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
+
+    @staticmethod
+    def add_arguments(p: argparse.ArgumentParser) -> None:
+        """The command-line options of this study."""
+        p.add_argument("--backends", nargs="+", default=list(BACKENDS), choices=list(BACKENDS))
+        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
+        p.add_argument(
+            "--cases", nargs="+", default=list(CASES), choices=list(CASES), help="constraint cases"
+        )
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> Options:
+        """The options from parsed arguments."""
+        return cls(tuple(ns.backends), tuple(ns.kinds), tuple(ns.cases))
+
+
+def params(options: Options) -> list[dict[str, Any]]:
+    """The trials of a run."""
+    return [
+        {"kind": k, "case": c, "backend": b}
+        for b in options.backends
+        for k in options.kinds
+        for c in options.cases
+    ]
+
+
+def main(run: RunOptions, options: Options) -> list[Path]:
+    """Run the study into ``run.out``: ``constraints_stress.jsonl``, the summary and its table."""
+    out = run.prepare()
+    with run.executor() as ex:
+        rows = run_trials(
+            TABLE,
+            params(options),
+            out,
+            executor=ex,
+            progress=not run.quiet,
+            label="constraints_stress",
+            resume=not run.fresh,
+        )
+    table = summarise(rows)
+    text = markdown(table)
+    if not run.quiet:
+        print(text)
+    return [TABLE.path(out), *write_summary(out, "constraints_stress", table, text)]
+
+
+if __name__ == "__main__":
+    from studies.cli import main as cli_main
+
+    sys.exit(
+        cli_main(
+            [
+                "constraints_stress",
+                "--out",
+                str(Path(__file__).parent / "results" / "constraints_stress"),
+                *sys.argv[1:],
+            ]
+        )
+    )
