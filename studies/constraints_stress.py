@@ -63,7 +63,11 @@ def l_shaped() -> po.Scenario:
     arm2 = np.column_stack([np.zeros(20), np.linspace(0.5, 9.5, 20)])
     locales = np.vstack([arm1, arm2]) + 0.5
     return po.Scenario(
-        locales=locales, starts=[[5.0, 5.0], [6.0, 6.0]], horizon=300, bounds=(0.0, 10.0, 0.0, 10.0), name="L"
+        locales=locales,
+        starts=np.array([[5.0, 5.0], [6.0, 6.0]]),
+        horizon=300,
+        bounds=(0.0, 10.0, 0.0, 10.0),
+        name="L",
     )
 
 
