@@ -12,7 +12,9 @@ Each trial plans one scenario under one constraint case with one backend and sor
 Cases (``CASES``) sweep speed limits (generous to very tight; starts at rest keep them feasible),
 acceleration limits, a circular and a square keep-out zone of growing size placed where no platform
 starts, guaranteed visits of shrinking radius, and combinations with a known answer: a speed limit that
-leaves far too little travel for the visits, and a visit disc inside an obstacle (both infeasible).
+leaves far too little travel for the visits, a visit disc inside an obstacle, an acceleration limit
+too small to reach the visits, and an end behind a wall too long to go round at the speed limit (all
+infeasible; the pre-checks name the first three, only a solver and the diagnosis the last).
 Scenarios: the paper's A, B, C (seed 0) and an irregular one, ``L``: 40 locales along the two arms of an
 L, two platforms starting at its inside corner, ``T = 300``.
 
@@ -100,6 +102,20 @@ def _locale_obstacle(sc: po.Scenario) -> list[po.Constraint]:
     return [po.CircleObstacle(sc.locales[n], min(0.5, 0.5 * float(d[n]))), po.VisitAll(0.05)]
 
 
+def _walled_end(sc: po.Scenario) -> list[po.Constraint]:
+    """Platform 0 must end 3 units to the right of its start, beyond a wall 400 units long that starts 1
+    unit to its right, at speed at most 0.5: going round takes far more travel than the horizon allows,
+    while every straight-line pre-check passes. Only a solver finds this one."""
+    s0 = sc.start_positions[0]
+    x = float(s0[0]) + 1.0
+    wall = [(x, -200.0), (x + 0.5, -200.0), (x + 0.5, 200.0), (x, 200.0)]
+    return [
+        po.PolygonObstacle(wall, platforms=[0]),
+        po.SpeedLimit(0.5, platforms=[0]),
+        po.Terminal(position=(float(s0[0]) + 3.0, float(s0[1])), platforms=[0]),
+    ]
+
+
 def _obstacle(shape: str, fraction: float) -> Callable[[po.Scenario], list[po.Constraint]]:
     def build(sc: po.Scenario) -> list[po.Constraint]:
         center, room = free_spot(sc)
@@ -148,6 +164,8 @@ CASES: dict[str, Case] = {
     ),
     "speed-1e-4+visit-0.05": Case(_const(lambda: po.SpeedLimit(1e-4), lambda: po.VisitAll(0.05)), False),
     "obstacle-on-locale+visit": Case(_locale_obstacle, False),
+    "accel-1e-7+visit-0.1": Case(_const(lambda: po.AccelLimit(1e-7), lambda: po.VisitAll(0.1)), False),
+    "walled-end": Case(_walled_end, False),
 }
 
 
@@ -235,7 +253,15 @@ def trial(kind: str, case: str, backend: str) -> dict[str, Any]:
     constraints = CASES[case].build(sc)
     cfg = po.PMHTConfig(solver=backend, constraints=constraints, threads=1)
     t0 = time.perf_counter()
-    row: dict[str, Any] = {"raised": "", "message": "", "violation": -1.0, "worst": "", "distance": 0.0}
+    row: dict[str, Any] = {
+        "raised": None,
+        "message": None,
+        "violation": None,
+        "worst": None,
+        "distance": None,
+        "coverage": None,
+        "excursion": None,
+    }
     try:
         res = po.plan_pmht(sc, cfg)
     except po.InfeasibleError as err:
@@ -254,8 +280,6 @@ def trial(kind: str, case: str, backend: str) -> dict[str, Any]:
             excursion=res.max_excursion(),
         )
     row["seconds"] = time.perf_counter() - t0
-    row.setdefault("coverage", 0.0)
-    row.setdefault("excursion", 0.0)
     row["tolerance"] = RTOL.get(backend, 1e-6)
     feasible = CASES[case].feasible
     row["expected"] = "unknown" if feasible is None else ("feasible" if feasible else "infeasible")
@@ -270,14 +294,14 @@ TABLE = TrialTable(
         values={
             "outcome": "str",
             "expected": "str",
-            "raised": "str",
-            "message": "str",
-            "violation": "float",
-            "worst": "str",
+            "raised": "str?",
+            "message": "str?",
+            "violation": "float?",
+            "worst": "str?",
             "tolerance": "float",
-            "distance": "float",
-            "coverage": "float",
-            "excursion": "float",
+            "distance": "float?",
+            "coverage": "float?",
+            "excursion": "float?",
             "seconds": "float",
         },
     ),

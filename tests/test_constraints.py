@@ -87,12 +87,17 @@ def test_motion_area_obstacles_terminal_hold(kind: str, solver: str, speeds: dic
     assert res.max_violation <= tol
 
 
-@pytest.mark.parametrize(("kind", "solver"), CASES)
+#: Every scenario with clarabel; each other backend on one scenario (OSQP's constrained solves of
+#: guaranteed visits take thousands of ADMM iterations: seconds per M-step).
+VISIT_CASES = [("A", "clarabel"), ("B", "clarabel"), ("C", "clarabel"), ("B", "osqp"), ("C", "cvxpy")]
+
+
+@pytest.mark.parametrize(("kind", "solver"), VISIT_CASES)
 def test_visit_all_guarantees_coverage(kind: str, solver: str) -> None:
     sc = paper_scenario(kind, seed=1)
     # A short annealing schedule; VisitAll's warm-up counts from its end (settled r), so the visits
-    # are chosen from sharp weights and imposed on the last two or three iterations.
-    n_iter, anneal = {"clarabel": (12, 6), "osqp": (8, 4), "cvxpy": (12, 6)}[solver]
+    # are chosen from sharp weights and imposed on the last iterations.
+    n_iter, anneal = 12, 6
     cfg = PMHTConfig(
         solver=solver,
         max_iter=n_iter,
@@ -230,9 +235,15 @@ def _impossible(soft: bool = False) -> list:
 
 
 def _unreachable() -> list:
-    # From rest, an acceleration of at most 1e-4 moves a platform at most 1e-4 * 80^2 / 2 = 0.32 in the
-    # horizon: a final position 6 units away cannot be reached. No geometric pre-check sees this one.
-    return [AccelLimit(1e-4, platforms=[0]), Terminal(position=(7.0, 1.0), platforms=[0])]
+    # A wall 200 units long between platform 0 and its end: going round it takes at least 200 units of
+    # travel, the speed limit allows 40 in the horizon. The straight line (4 units) passes every
+    # pre-check: only the solver finds this one, and the diagnosis names it.
+    wall = [(2.5, -100.0), (3.0, -100.0), (3.0, 100.0), (2.5, 100.0)]
+    return [
+        PolygonObstacle(wall, platforms=[0]),
+        SpeedLimit(0.5, platforms=[0]),
+        Terminal(position=(5.0, 1.0), platforms=[0]),
+    ]
 
 
 @pytest.mark.parametrize("solver", ["clarabel", "osqp", "cvxpy"])
@@ -245,7 +256,7 @@ def test_infeasible_constraints_raise(solver: str) -> None:
     with pytest.raises(InfeasibleError) as err:
         plan_pmht(sc, PMHTConfig(solver=solver, max_iter=2, constraints=_unreachable()))
     msg = str(err.value)
-    assert "AccelLimit" in msg or "Terminal" in msg
+    assert "PolygonObstacle" in msg and "Terminal" in msg
     if solver != "osqp":
         assert "platform 0" in msg and "t = " in msg
 

@@ -5,7 +5,11 @@ ADMM solver after many iterations. Each test below is a necessary condition for 
 from geometry alone; failing one raises :class:`~pmht_opt.exceptions.InfeasibleError` naming the
 constraints that conflict and by how much.
 
-* **Travel budget.** With a speed limit ``v_m`` platform ``m`` can travel at most ``v_m T dt``. To
+* **Travel budget.** With a speed limit ``v_m`` platform ``m``'s displacement per step is at most
+  ``v_m dt``; with an acceleration limit ``a_m`` it is at most ``|v_0| dt + t a_m dt^2`` at step ``t``
+  (the limit bounds the change of the displacement from one step to the next, and of the first one
+  from the start's velocity), so over the horizon the platform travels at most
+  ``sum_t min(v_m dt, |v_0| dt + t a_m dt^2)``. To
   visit every locale's disc (radius ``rho``, :class:`~pmht_opt.constraints.VisitAll`) the paths, taken
   together, form a forest that touches every disc and has one tree per start, so their total length
   is at least the weight of a minimum spanning forest on the locales and starts with edge lengths
@@ -45,14 +49,20 @@ def _hard(constraints: Sequence[Constraint], kind: type[Constraint]) -> list[Any
     return [c for c in constraints if isinstance(c, kind) and not c.soft]
 
 
-def _travel(scenario: Scenario, limits: list[SpeedLimit]) -> np.ndarray:
-    """``(M,)`` the most each platform can travel over the horizon (inf without a speed limit)."""
-    out = np.full(scenario.n_platforms, np.inf)
-    span = scenario.horizon * scenario.dt
-    for lim in limits:
+def _travel(scenario: Scenario, speed: list[SpeedLimit], accel: list[AccelLimit]) -> np.ndarray:
+    """``(M,)`` the most each platform can travel over the horizon (module docstring; inf without a
+    speed or acceleration limit)."""
+    M, T, dt = scenario.n_platforms, scenario.horizon, scenario.dt
+    step = np.full((M, T), np.inf)  # bound on |p_t - p_{t-1}|, t = 1..T
+    for lim in speed:
         for m in lim.applies_to(scenario):
-            out[m] = min(out[m], lim.limit_for(m) * span)
-    return out
+            np.minimum(step[m], lim.limit_for(m) * dt, out=step[m])
+    v0 = np.hypot(scenario.initial_states[:, 1], scenario.initial_states[:, 4])
+    t = np.arange(1, T + 1)
+    for acc in accel:
+        for m in acc.applies_to(scenario):
+            np.minimum(step[m], v0[m] * dt + t * acc.limit_for(m) * dt**2, out=step[m])
+    return step.sum(axis=1)
 
 
 def covering_length(locales: np.ndarray, starts: np.ndarray, radius: float) -> float:
@@ -76,8 +86,8 @@ def covering_length(locales: np.ndarray, starts: np.ndarray, radius: float) -> f
 def check_feasible(scenario: Scenario, constraints: Sequence[Constraint]) -> None:
     """Raise :class:`InfeasibleError` if the hard constraints fail a necessary condition (module
     docstring); return quietly otherwise (the problem may still be infeasible)."""
-    limits = _hard(constraints, SpeedLimit)
-    travel = _travel(scenario, limits)
+    limits = _hard(constraints, SpeedLimit) + _hard(constraints, AccelLimit)
+    travel = _travel(scenario, _hard(constraints, SpeedLimit), _hard(constraints, AccelLimit))
     for visits in _hard(constraints, VisitAll):
         _check_visits(scenario, visits, constraints, limits, travel)
     for end in _hard(constraints, Terminal):
@@ -88,7 +98,7 @@ def _check_visits(
     scenario: Scenario,
     visits: VisitAll,
     constraints: Sequence[Constraint],
-    limits: list[SpeedLimit],
+    limits: list[Constraint],
     travel: np.ndarray,
 ) -> None:
     rho = visits.radius_for(scenario)
@@ -115,23 +125,34 @@ def _check_visits(
             )
     if not limits:
         return
-    names = " and ".join(c.name for c in limits)
-    reach = np.hypot(*(z[:, None, :] - s[None, :, :]).transpose(2, 0, 1)) - rho  # (N, M)
+    limit_names = names = " and ".join(c.name for c in limits)
+    reach = np.maximum(np.hypot(*(z[:, None, :] - s[None, :, :]).transpose(2, 0, 1)) - rho, 0.0)  # (N, M)
+    # A platform that must end at a terminal position also has to get there from the locale.
+    for end in _hard(constraints, Terminal):
+        targets = end.targets(scenario)
+        if targets is None:
+            continue
+        for m in end.applies_to(scenario):
+            e = targets[0 if targets.shape[0] == 1 else m]
+            back = np.maximum(np.hypot(z[:, 0] - e[0], z[:, 1] - e[1]) - rho - end.radius, 0.0)
+            reach[:, m] += back
+        names += f" and {end.name}"
     beyond = np.all(reach > travel[None, :] * (1 + MARGIN), axis=1)
     if np.any(beyond):
         n = int(np.flatnonzero(beyond)[0])
         m = int(np.argmin(reach[n]))
         raise InfeasibleError(
             f"{visits.name} and {names} conflict: platform {m}, the nearest, cannot reach locale {n}: it "
-            f"is {float(reach[n, m]):.4g} beyond the visit radius from its start, and the platform travels "
+            f"needs {float(reach[n, m]):.4g} of travel to reach its visit disc (and its end, if it has one), "
+            "and the platform travels "
             f"at most {float(travel[m]):.4g} in the horizon ({int(np.sum(beyond))} locale(s) out of reach)."
         )
     need = covering_length(z, s, rho)
     budget = float(np.sum(travel))
     if need > budget * (1 + MARGIN):
         raise InfeasibleError(
-            f"{visits.name} and {names} conflict: visiting every locale needs at least {need:.4g} units "
-            f"of travel, and the speed limit allows {budget:.4g} over the horizon."
+            f"{visits.name} and {limit_names} conflict: visiting every locale needs at least {need:.4g} "
+            f"units of travel, and {limit_names} allow {budget:.4g} over the horizon."
         )
 
 
@@ -139,7 +160,7 @@ def _check_terminal(
     scenario: Scenario,
     end: Terminal,
     constraints: Sequence[Constraint],
-    limits: list[SpeedLimit],
+    limits: list[Constraint],
     travel: np.ndarray,
 ) -> None:
     targets = end.targets(scenario)
@@ -164,7 +185,7 @@ def _check_end_position(
     scenario: Scenario,
     end: Terminal,
     constraints: Sequence[Constraint],
-    limits: list[SpeedLimit],
+    limits: list[Constraint],
     travel: np.ndarray,
     m: int,
     target: np.ndarray,

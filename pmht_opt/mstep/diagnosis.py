@@ -6,8 +6,10 @@ problem decides: the same dynamics and constraint rows, every unit relaxed by a 
 (:meth:`~pmht_opt.mstep.rows.Imposed.relaxed`), and the total slack as the only cost. The motion's own
 costs are left out on purpose: with them, a penalty on the slacks trades violations against the price
 of a manoeuvre, and a merely expensive manoeuvre would be reported as an impossible one. The slacks
-that stay positive belong to the constraints that cannot all be met, at the time steps where they
-clash. If none does the problem is feasible and the failure was the solver's own, a
+that stay positive show where the least relaxation has to give; the error names every hard
+constraint of the platform as the set that cannot all be met (the slack can land on any member of a
+conflicting pair: an acceleration limit and a visit it forbids share the blame), then those slacks.
+If no slack stays positive the problem is feasible and the failure was the solver's own, a
 :class:`~pmht_opt.exceptions.SolverError` with its status.
 
 The phase-one problem is solved by Clarabel where it is installed (an interior-point solve of a
@@ -107,7 +109,9 @@ def diagnose(
             span += " (" + ", ".join(labels[:5]) + (", ..." if len(labels) > 5 else "") + ")"
         parts.append(f"{name} on platform {platform} at {span}, short by up to {max(h[2] for h in hits):.3g}")
     return InfeasibleError(
-        f"{sol.backend}: infeasible constraints: " + "; ".join(parts) + ". Relax them or pass soft=True.",
+        f"{sol.backend}: {where}; the least relaxation that reconciles them needs "
+        + "; ".join(parts)
+        + ". Relax them or pass soft=True.",
         sol.backend,
         sol.raw_status,
     )

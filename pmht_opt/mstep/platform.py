@@ -11,6 +11,7 @@ platform's largest: below that its pull on the path is lost in rounding.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -45,6 +46,14 @@ class Settings:
     plain: dict[str, Any]
     constrained: dict[str, Any]
     retries: solvers.RetryChain
+    #: The retries of solves with constraint rows (``None``: :attr:`retries`).
+    constrained_retries: solvers.RetryChain | None = None
+
+    def chain(self, constrained: bool) -> solvers.RetryChain:
+        """The retries of a solve with (``True``) or without constraint rows."""
+        if constrained and self.constrained_retries is not None:
+            return self.constrained_retries
+        return self.retries
 
 
 class PlatformQP:
@@ -67,13 +76,17 @@ class PlatformQP:
         settings: dict[str, Any],
         constrained_settings: dict[str, Any] | None = None,
         retries: solvers.RetryChain = solvers.NO_RETRY,
+        constrained_retries: solvers.RetryChain | None = None,
     ) -> None:
         self.model = model
         self.x0 = x0
         self.horizon = horizon
         self.session_class = session_class
         self.state = Settings(
-            settings, settings if constrained_settings is None else constrained_settings, retries
+            settings,
+            settings if constrained_settings is None else constrained_settings,
+            retries,
+            constrained_retries,
         )
         self._qps: dict[int, HorizonQP] = {}
 
@@ -100,14 +113,20 @@ class PlatformQP:
         return self._qps[horizon]
 
     def solve(
-        self, W: np.ndarray, WZ: np.ndarray, r: float, rows: PlatformRows | None = None
+        self,
+        W: np.ndarray,
+        WZ: np.ndarray,
+        r: float,
+        rows: PlatformRows | None = None,
+        probe: Callable[[solvers.QPSolution], None] | None = None,
     ) -> tuple[solvers.QPSolution, np.ndarray | None, np.ndarray | None]:
-        """Solve for weights ``W (T,)``, weighted locale sums ``WZ (T, 2)`` and constraint rows."""
+        """Solve for weights ``W (T,)``, weighted locale sums ``WZ (T, 2)`` and constraint rows
+        (``probe``: see :meth:`HorizonQP.solve`)."""
         T = self.horizon
         constrained = rows is not None and bool(rows.items)
         n = T if constrained else max(weighted_horizon(W), 1)
         qp = self.qp(n)
-        sol = qp.solve(W[:n], WZ[:n], r, rows)
+        sol = qp.solve(W[:n], WZ[:n], r, rows, probe)
         if sol.x is None:
             return sol, None, None
         head = qp.layout.states(sol.x[: qp.layout.n])[0]
@@ -205,9 +224,18 @@ class HorizonQP:
         return self.state.plain if self.extra is None else self.state.constrained
 
     def solve(
-        self, W: np.ndarray, WZ: np.ndarray, r: float, rows: PlatformRows | None = None
+        self,
+        W: np.ndarray,
+        WZ: np.ndarray,
+        r: float,
+        rows: PlatformRows | None = None,
+        probe: Callable[[solvers.QPSolution], None] | None = None,
     ) -> solvers.QPSolution:
         """Solve for weights ``W (T,)``, weighted locale sums ``WZ (T, 2)`` and constraint rows.
+
+        ``probe`` is called with a failed constrained solve before any retry; it may raise (the
+        M-step asks whether the rows are infeasible, which a cheap feasibility problem settles far
+        sooner than a chain of retries of a solver that cannot succeed).
 
         A session's scaling (both backends equilibrate at setup) is kept while ``r`` stays within a
         factor :data:`RESCALE` of the ``r`` it was set up with; past that, and whenever the rows'
@@ -219,7 +247,7 @@ class HorizonQP:
         if self.session is not None and key == self._rows_key and not stale:  # only the weights moved
             q = self._cost(W, WZ, r)
             self.session.update(P_data=self.diag[self.stored], q=q)
-            return self._retry(self.session.solve(), q, fresh=False)
+            return self._retry(self.session.solve(), q, fresh=False, probe=probe)
         self._rows_key = key
         self.extra = assemble(rows.items, self.layout.n, self.col_map) if rows and rows.items else None
         pattern = None if self.extra is None else self.extra.pattern_key()
@@ -236,7 +264,7 @@ class HorizonQP:
             self.session.update(P_data=self.diag[self.stored], q=q)
         else:
             self.session.update(P_data=self.diag[self.stored], q=q, A_data=A.data, b=b)
-        return self._retry(self.session.solve(), q, fresh=fresh)
+        return self._retry(self.session.solve(), q, fresh=fresh, probe=probe)
 
     def _open(self, problem: solvers.QPProblem, options: dict[str, Any]) -> solvers.QPSession:
         try:
@@ -246,7 +274,13 @@ class HorizonQP:
         except solvers.QPError as err:
             raise SolverError(f"cannot set up the M-step QP: {err}") from err
 
-    def _retry(self, sol: solvers.QPSolution, q: np.ndarray, fresh: bool) -> solvers.QPSolution:
+    def _retry(
+        self,
+        sol: solvers.QPSolution,
+        q: np.ndarray,
+        fresh: bool,
+        probe: Callable[[solvers.QPSolution], None] | None = None,
+    ) -> solvers.QPSolution:
         """After a failed solve: first the same settings on a fresh session (a new scaling), if the
         failed one was an updated session; then the backend's slower, more robust settings in turn.
 
@@ -255,6 +289,8 @@ class HorizonQP:
         """
         if sol.ok or sol.status in solvers.INFEASIBLE:
             return sol
+        if probe is not None and self.extra is not None:
+            probe(sol)
         A, b, cones = self._constraints()
         n_slack = 0 if self.extra is None else self.extra.n_slack
         problem = solvers.QPProblem(P=self._P(n_slack), q=q, A=A, b=b, cones=cones)
@@ -264,7 +300,8 @@ class HorizonQP:
             if again.ok:
                 self.problem, self.session = problem, session
                 return again
-        if not self.state.retries.sets:
+        chain = self.state.chain(self.extra is not None)
+        if not chain.sets:
             return sol
         last: list[solvers.QPSession] = []
 
@@ -272,7 +309,7 @@ class HorizonQP:
             last[:] = [self.session_class(problem, **settings)]
             return last[0].solve()
 
-        out, used = solvers.retry_failed(sol, self.options, self.state.retries, attempt)
+        out, used = solvers.retry_failed(sol, self.options, chain, attempt)
         if used is not None:  # the last session opened is the one that solved
             self.problem, self.session = problem, last[0]
             if self.extra is None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, ClassVar
 
@@ -15,7 +16,14 @@ from pmht_opt.mstep.base import MStep, MStepData, MStepOutput
 from pmht_opt.mstep.diagnosis import diagnose
 from pmht_opt.mstep.platform import PlatformQP
 from pmht_opt.mstep.rows import PlatformRows, RowBuilder
-from pmht_opt.mstep.tuning import CONSTRAINED_DEFAULTS, DEFAULTS, RETRIES, cvxpy_defaults, cvxpy_retries
+from pmht_opt.mstep.tuning import (
+    CONSTRAINED_DEFAULTS,
+    CONSTRAINED_RETRIES,
+    DEFAULTS,
+    RETRIES,
+    cvxpy_defaults,
+    cvxpy_retries,
+)
 from pmht_opt.scenario import Scenario
 
 #: Largest violation of a platform's rows by the exact unconstrained optimum for it to be taken as the
@@ -83,13 +91,16 @@ class QPMStep(MStep):
             self.options = {**cvxpy_defaults(self.settings), **self.settings}
             self.constrained_options = dict(self.settings)
             retries = cvxpy_retries(self.settings)
+            constrained_retries = retries
             threads = 1
         else:
             self.options = {**DEFAULTS.get(solver, {}), **self.settings}
             self.constrained_options = {**CONSTRAINED_DEFAULTS.get(solver, {}), **self.settings}
             retries = RETRIES.get(solver, solvers.NO_RETRY)
+            constrained_retries = CONSTRAINED_RETRIES.get(solver, retries)
         # Sets touching a setting the caller chose are skipped: do not second-guess the caller.
         retries = retries.without(self.settings)
+        self.constrained_retries = constrained_retries.without(self.settings)
         self.blocks = [self._platform(m, retries) for m in range(self.M)]
         self.threads = max(1, min(int(threads), self.M))
         self._pool: ThreadPoolExecutor | None = None
@@ -103,6 +114,7 @@ class QPMStep(MStep):
             self.options,
             self.constrained_options,
             retries,
+            self.constrained_retries,
         )
 
     def _solve(self, data: MStepData) -> MStepOutput:
@@ -126,8 +138,20 @@ class QPMStep(MStep):
                 exact_ok[m] = self.exact_unconstrained or bool(idle[m])
         active = [int(m) for m in np.flatnonzero(~exact_ok)]
 
+        def probe(m: int) -> Callable[[solvers.QPSolution], None] | None:
+            platform_rows = rows.get(m)
+            if platform_rows is None or not any(not i.soft for i in platform_rows.items):
+                return None
+
+            def check(sol: solvers.QPSolution) -> None:
+                err = self._diagnose(m, data, platform_rows, sol)
+                if isinstance(err, InfeasibleError):
+                    raise err
+
+            return check
+
         def one(m: int) -> tuple[solvers.QPSolution, np.ndarray | None, np.ndarray | None]:
-            return self.blocks[m].solve(data.W[:, m], data.WZ[:, m], data.r, rows.get(m))
+            return self.blocks[m].solve(data.W[:, m], data.WZ[:, m], data.r, rows.get(m), probe=probe(m))
 
         if self.threads > 1 and len(active) > 1:
             if self._pool is None:

@@ -9,7 +9,11 @@ Why each value (figures in docs/decisions.md sections 2 and 3):
   with polishing it solves limits, bounds, obstacles and terminal conditions. OSQP's duality-gap
   test keeps such solves at "solved inaccurate", so it is off. Polishing recovers the exact answer when
   ADMM found the active set; on speed limits positions can stay about 1e-3 from the optimum, so use
-  clarabel for exact constrained plans.
+  clarabel for exact constrained plans. The iteration cap of a constrained attempt is 8000 (a
+  feasible constrained M-step of scenario A takes a few hundred): an infeasible one, which ADMM
+  rarely certifies, then fails within seconds, and the infeasibility diagnosis names it before any
+  retry; a feasible but hard one is retried with room for 50000 iterations (guaranteed visits take
+  5000-43000 on A, B, C), then with a fixed ``rho``.
 * Clarabel: iterative refinement of the KKT solves roughly doubles the time of a constrained M-step and
   is not needed on well-scaled ones, so it is off by default and the first retry.
 * Retries (:class:`solvers.RetryChain`), tried in turn when a solve fails without an infeasibility
@@ -56,6 +60,7 @@ CONSTRAINED_DEFAULTS: dict[str, dict[str, Any]] = {
         "polish_refine_iter": 10,
         "check_dualgap": False,
         "check_termination": 25,
+        "max_iter": 8000,
     },
     "clarabel": {"iterative_refinement_enable": False},
 }
@@ -71,6 +76,13 @@ RETRIES: dict[str, RetryChain] = {
         )
     ),
     "osqp": RetryChain(({"rho": 100.0, "adaptive_rho": False}, {"rho": 30.0, "adaptive_rho": False})),
+}
+
+#: Settings tried in turn after a failed solve with constraint rows (backends not listed: :data:`RETRIES`).
+#: OSQP's first constrained attempt stops at 8000 iterations; then, once the infeasibility diagnosis
+#: has found the rows feasible, the same settings with room for 50000, then a fixed ``rho``.
+CONSTRAINED_RETRIES: dict[str, RetryChain] = {
+    "osqp": RetryChain(({"max_iter": 50_000}, {"rho": 100.0, "adaptive_rho": False, "max_iter": 20_000})),
 }
 
 #: Options of Clarabel inside cvxpy on unconstrained M-steps: the clarabel backend's tolerances (cvxpy
