@@ -371,7 +371,10 @@ def _report(result: PlanResult, mission: Mission) -> None:
         ("mean / max miss distance", f"{m['mean_miss_distance']:.3f} / {m['max_miss_distance']:.3f}{u}"),
         ("locales per platform", " ".join(str(v) for v in m["locales_per_platform"])),
         ("crossings between platforms", str(m["crossings"])),
-        ("max speed / acceleration", f"{m['max_speed']:.4g} / {m['max_acceleration']:.4g}"),
+        (
+            "max speed / acceleration (positions)",
+            f"{m['max_speed']:.4g} / {m['max_acceleration']:.4g}",
+        ),
         ("max excursion outside area", f"{m['max_excursion']:.3f}{u}"),
         ("max constraint violation", f"{result.max_violation:.1e}"),
         ("final EM objective", f"{m['final_objective']:.6g}"),

@@ -191,13 +191,32 @@ class PlanResult:
 
     @property
     def max_speed(self) -> float:
-        """Largest speed ``||(vx, vy)||`` over all platforms and times."""
+        """Largest speed measured on the positions, ``max ||p_t - p_{t-1}|| / dt``: what a user who flies
+        the plan sees. The motion model moves positions by process noise as well as by the velocity
+        state, so this can exceed :attr:`max_speed_state`."""
+        d = np.diff(self.positions, axis=1)
+        return float(np.max(np.hypot(d[..., 0], d[..., 1]), initial=0.0)) / self.scenario.dt
+
+    @property
+    def max_speed_state(self) -> float:
+        """Largest speed of the velocity states ``||(vx, vy)||`` over all platforms and times."""
         v = self.states[:, :, VEL]
         return float(np.max(np.hypot(v[..., 0], v[..., 1])))
 
     @property
     def max_acceleration(self) -> float:
-        """Largest acceleration ``||(ax, ay)||`` over all platforms and times."""
+        """Largest acceleration measured on the positions, ``max ||p_{t+1} - 2 p_t + p_{t-1}|| / dt^2``,
+        the first step's measured from the start's velocity (``p_{-1} = p_0 - v_0 dt``), as
+        :class:`~pmht_opt.constraints.AccelLimit` bounds it."""
+        dt = self.scenario.dt
+        p = self.positions
+        before = p[:, :1] - self.states[:, :1, VEL] * dt
+        dd = np.diff(np.concatenate([before, p], axis=1), n=2, axis=1)
+        return float(np.max(np.hypot(dd[..., 0], dd[..., 1]), initial=0.0)) / dt**2
+
+    @property
+    def max_acceleration_state(self) -> float:
+        """Largest acceleration of the states ``||(ax, ay)||`` over all platforms and times."""
         a = self.states[:, :, ACC]
         return float(np.max(np.hypot(a[..., 0], a[..., 1])))
 
@@ -228,7 +247,9 @@ class PlanResult:
             "max_miss_distance": float(np.max(self.miss_distance)),
             "crossings": int(self.crossings),
             "max_speed": self.max_speed,
+            "max_speed_state": self.max_speed_state,
             "max_acceleration": self.max_acceleration,
+            "max_acceleration_state": self.max_acceleration_state,
             "max_excursion": self.max_excursion(),
             "locales_per_platform": self.locales_per_platform.tolist(),
             "distance_per_platform": self.distance_per_platform.tolist(),

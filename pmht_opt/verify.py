@@ -43,7 +43,8 @@ def verify_plan(
             where = "" if rep.worst is None else f" on platform {rep.worst[0]} at t = {rep.worst[1]}"
             raise SolverError(
                 f"{backend}: the plan breaks {rep.name}{where} by {rep.max_violation:.3g} (tolerance "
-                f"{tol:.3g}; {rep.n_violations} step(s) over 1e-6) although every M-step reported success.",
+                f"{tol:.3g}; {rep.n_violations} step(s) over 1e-6 of its size) although every M-step "
+                "reported success.",
                 backend=backend,
                 status="verification failed",
             )

@@ -31,6 +31,10 @@ STUDIES: dict[str, tuple[str, str]] = {
     "scaling": ("studies.scaling", "plan time and peak memory as locales, horizon and platforms grow"),
     "anneal": ("studies.anneal", "plain against annealed EM with both time-prior settings"),
     "convergence": ("studies.convergence", "when the EM can stop: stopping rules replayed on full runs"),
+    "guaranteed_visits": (
+        "studies.guaranteed_visits",
+        "VisitAll on the paper's scenarios: failures, coverage, excursions beyond the starts, time",
+    ),
     "constraints_stress": (
         "studies.constraints_stress",
         "constraints from generous to infeasible on every backend: solved, named, verified",

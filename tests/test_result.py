@@ -46,10 +46,25 @@ def test_distance_coverage_miss_and_crossings() -> None:
     assert res.metrics()["missed_locales"] == [2]
     assert res.crossings == 1
     np.testing.assert_array_equal(res.locales_per_platform, [3, 0])
-    assert res.max_speed == pytest.approx(np.sqrt(2))
+    assert res.max_speed == pytest.approx(np.sqrt(2))  # the first path's steps of (1, 1)
+    assert res.max_speed_state == pytest.approx(np.sqrt(2))
     assert res.max_excursion() == 0.0
     with pytest.raises(po.ConfigError, match="radius"):
         res.coverage(-1)
+
+
+def test_speed_and_acceleration_are_measured_on_the_positions() -> None:
+    # Velocity states at rest while the positions jump: the state figures say 0, the measured ones the
+    # jump (2 per step, then back to rest).
+    positions = np.array([[[0.0, 0.0], [2.0, 0.0], [4.0, 0.0], [4.0, 0.0]]])
+    res = hand_made(positions, np.array([[1.0, 0.0]]), np.array([0]))
+    res.states[:, :, [1, 4]] = 0.0
+    assert res.max_speed_state == 0.0
+    assert res.max_speed == pytest.approx(2.0)
+    # p_-1 = p_0 (at rest): second differences 2, 0, -2.
+    assert res.max_acceleration == pytest.approx(2.0)
+    assert res.max_acceleration_state == 0.0
+    assert res.metrics()["max_speed"] == res.max_speed
 
 
 def test_coverage_counts_the_segments_not_only_the_samples() -> None:

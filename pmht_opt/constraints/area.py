@@ -63,11 +63,16 @@ class AreaBounds(Constraint):
                 )
 
     def blocks(self, ctx: ConstraintContext) -> list[Block]:
-        T = ctx.scenario.horizon
-        xmin, xmax, ymin, ymax = self.box
-        # Rows per step: px <= xmax, -px <= -xmin, py <= ymax, -py <= -ymin.
-        times = np.repeat(np.arange(1, T + 1), 4)
-        coeff = np.tile(np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]), (T, 1))
-        G = state_rows(T, times, np.array([PX, PY]), coeff)
-        h = np.tile(np.array([xmax, -xmin, ymax, -ymin]), T)
-        return [Block(m, "nonneg", G, h, times=times) for m in self.applies_to(ctx.scenario)]
+        return [box_block(m, ctx.scenario.horizon, self.box) for m in self.applies_to(ctx.scenario)]
+
+
+def box_block(platform: int, horizon: int, box: np.ndarray) -> Block:
+    """Rows keeping ``platform``'s positions at ``t = 1..T`` in ``box = (xmin, xmax, ymin, ymax)``."""
+    T = horizon
+    xmin, xmax, ymin, ymax = box
+    # Rows per step: px <= xmax, -px <= -xmin, py <= ymax, -py <= -ymin.
+    times = np.repeat(np.arange(1, T + 1), 4)
+    coeff = np.tile(np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]), (T, 1))
+    G = state_rows(T, times, np.array([PX, PY]), coeff)
+    h = np.tile(np.array([xmax, -xmin, ymax, -ymin]), T)
+    return Block(platform, "nonneg", G, h, times=times)

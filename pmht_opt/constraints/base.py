@@ -40,7 +40,8 @@ if TYPE_CHECKING:
 #: What a backend may be asked for: linear rows, second-order cones, native cvxpy constraints.
 CAPABILITIES = frozenset({"linear", "soc", "cvxpy"})
 
-#: Violations at or below this are reported as met (the solvers' tolerance is far below it).
+#: Violations at or below this fraction of a constraint's own size (:meth:`Constraint.scale`) are
+#: reported as met.
 VIOLATION_TOL = 1e-6
 
 
@@ -84,7 +85,8 @@ class ConstraintReport:
     max_violation
         Largest violation over all platforms and times (0 when met).
     n_violations
-        Number of (platform, time) units violated by more than the tolerance.
+        Number of (platform, time) units violated by more than :data:`VIOLATION_TOL` of the
+        constraint's own size (:meth:`Constraint.scale`).
     worst
         ``(platform, time)`` of the largest violation, or ``None``.
     details
@@ -100,7 +102,7 @@ class ConstraintReport:
 
     @property
     def satisfied(self) -> bool:
-        """Whether every unit holds within :data:`VIOLATION_TOL`."""
+        """Whether every unit holds within :data:`VIOLATION_TOL` of the constraint's size."""
         return self.n_violations == 0
 
 
@@ -175,7 +177,7 @@ class Constraint(abc.ABC):
         default measures this constraint's own blocks (with their cones, not polygons) at ``states``;
         kinds that linearise a non-convex set override it with the exact geometry.
         """
-        return self._report(self._block_residuals(self.blocks(ctx), states))
+        return self._report(ctx.scenario, self._block_residuals(self.blocks(ctx), states))
 
     def _block_residuals(
         self, blocks: list[Block], states: np.ndarray
@@ -187,13 +189,17 @@ class Constraint(abc.ABC):
         return out
 
     def _report(
-        self, residuals: list[tuple[int, np.ndarray, np.ndarray]], details: dict[str, Any] | None = None
+        self,
+        scenario: Scenario,
+        residuals: list[tuple[int, np.ndarray, np.ndarray]],
+        details: dict[str, Any] | None = None,
     ) -> ConstraintReport:
+        tol = VIOLATION_TOL * self.scale(scenario)
         worst_val, worst_at, count = 0.0, None, 0
         for platform, times, res in residuals:
             if res.size == 0:
                 continue
-            count += int(np.sum(res > VIOLATION_TOL))
+            count += int(np.sum(res > tol))
             i = int(np.argmax(res))
             if res[i] > worst_val:
                 worst_val, worst_at = float(res[i]), (int(platform), int(times[i]))
@@ -202,6 +208,6 @@ class Constraint(abc.ABC):
             soft=self.soft,
             max_violation=worst_val,
             n_violations=count,
-            worst=worst_at if worst_val > VIOLATION_TOL else None,
+            worst=worst_at if worst_val > tol else None,
             details=details or {},
         )

@@ -130,7 +130,7 @@ class _NormLimit(Constraint):
             f"max_{self.quantity}_state": float(state[mine].max()) if state.size else 0.0,
             f"max_{self.quantity}_measured": float(moved[mine].max()) if moved.size else 0.0,
         }
-        return self._report(residuals, details)
+        return self._report(sc, residuals, details)
 
 
 class SpeedLimit(_NormLimit):

@@ -100,7 +100,7 @@ class _Obstacle(Constraint):
             depth = self.segment_depth(pos[m, :-1], pos[m, 1:])  # segment t covers p_t too
             cuts += int(np.sum(depth > self.penetration(pos[m, 1:])))
             residuals.append((m, np.arange(1, pos.shape[1]), depth))
-        return self._report(residuals, {"segments_entering": cuts})
+        return self._report(ctx.scenario, residuals, {"segments_entering": cuts})
 
 
 class CircleObstacle(_Obstacle):

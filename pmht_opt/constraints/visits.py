@@ -6,6 +6,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from pmht_opt.constraints.area import box_block
 from pmht_opt.constraints.base import Constraint, ConstraintContext, ConstraintReport
 from pmht_opt.constraints.blocks import DEFAULT_SIDES, Block, disc_block
 from pmht_opt.constraints.params import check_sides, positive_number
@@ -106,6 +107,13 @@ class VisitAll(Constraint):
         strength on the last iteration, so the returned plan has it.
     ramp
         Iterations over which the visit discs shrink to ``radius`` (above); 0 imposes them whole.
+    keep_within
+        The paths stay within this distance of the scenario's area (its ``bounds``, grown to include
+        the platform's start): a hard bound on every position, ``keep_within / sqrt(2)`` beyond the
+        box on each side, so that even beyond a corner no position is further than ``keep_within``
+        from the area than its start is. Visits imposed at fixed times on a smooth path can otherwise
+        be met by a loop far outside the area, which no user wants flown (Table 1 scenarios: up to 4
+        units out). ``None`` lets the paths roam.
     sides
         Sides of the inner polygon on a backend without cones.
     soft, weight, platforms
@@ -122,6 +130,7 @@ class VisitAll(Constraint):
         warmup: int = 10,
         sides: int = DEFAULT_SIDES,
         ramp: int = 4,
+        keep_within: float | None = 0.5,
         **kwargs: Any,
     ) -> None:
         super().__init__(**kwargs)
@@ -133,6 +142,9 @@ class VisitAll(Constraint):
             raise ConfigError(f"VisitAll.ramp: expected an integer >= 0, got {ramp!r}.")
         self.ramp = int(ramp)
         self.sides = check_sides("VisitAll", sides)
+        self.keep_within = (
+            None if keep_within is None else positive_number("VisitAll.keep_within", keep_within)
+        )
 
     @property
     def name(self) -> str:
@@ -172,6 +184,20 @@ class VisitAll(Constraint):
                         labels=[f"locale {n}" for n in mine.tolist()],
                     )
                 )
+        return out + self.containment(ctx.scenario)
+
+    def containment(self, scenario: Scenario) -> list[Block]:
+        """The rows of ``keep_within`` (parameters), one box per platform."""
+        if self.keep_within is None or scenario.bounds is None:
+            return []
+        grow = self.keep_within / np.sqrt(2.0)
+        out = []
+        for m, (x, y) in enumerate(scenario.start_positions):
+            xmin, xmax, ymin, ymax = scenario.bounds
+            box = np.array(
+                [min(xmin, x) - grow, max(xmax, x) + grow, min(ymin, y) - grow, max(ymax, y) + grow]
+            )
+            out.append(box_block(m, scenario.horizon, box))
         return out
 
     def violation(self, states: np.ndarray, ctx: ConstraintContext) -> ConstraintReport:

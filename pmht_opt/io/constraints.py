@@ -150,8 +150,14 @@ KINDS: dict[str, Kind] = {
     ),
     "visit_all": Kind(
         VisitAll,
-        {"radius": _number, "warmup": _integer, "ramp": _integer, "sides": _integer},
-        lambda c, f: {"radius": c.radius, "warmup": c.warmup, "ramp": c.ramp, "sides": c.sides},
+        {"radius": _number, "warmup": _integer, "ramp": _integer, "sides": _integer, "keep_within": _number},
+        lambda c, f: {
+            "radius": c.radius,
+            "warmup": c.warmup,
+            "ramp": c.ramp,
+            "sides": c.sides,
+            "keep_within": c.keep_within,
+        },
     ),
     "terminal": Kind(
         Terminal,

@@ -1,0 +1,217 @@
+"""Study: guaranteed visits on the paper's scenarios. Do they always solve, and do the plans stay home?
+
+Each trial plans one Table 1 scenario (A, B or C, one seed) with ``VisitAll(radius)`` on a backend
+(clarabel by default) and the planner's default configuration, and records the outcome (a plan, or the
+error's class), the time, the coverage at the visit radius (measured on the segments), the total
+distance, and how far the plan leaves the area beyond its starts: ``excursion - start excursion``,
+which the constraint keeps at or below its ``keep_within`` (0.5).
+
+    pmht-opt study guaranteed_visits --workers 2 --out studies/results/guaranteed_visits
+    python studies/guaranteed_visits.py [--trials 100] [--radii 0.1 0.3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import pmht_opt as po
+from pmht_opt.exceptions import ConfigError
+from pmht_opt.result import excursion
+from studies.options import RunOptions, positive_int
+from studies.report import frame, write_summary
+from studies.store import Schema
+from studies.trials import Check, TrialTable, run_trials
+
+KINDS = ("A", "B", "C")
+BACKENDS = ("clarabel", "osqp", "cvxpy")
+
+
+def trial(kind: str, seed: int, radius: float, backend: str) -> dict[str, Any]:
+    """One plan with guaranteed visits; the outcome and what a user would check on it."""
+    sc = po.paper_scenario(kind, seed=seed)
+    assert sc.bounds is not None
+    cfg = po.PMHTConfig(solver=backend, constraints=[po.VisitAll(radius)], threads=1)
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"raised": None, "message": None, "coverage": None, "distance": None}
+    row["extra_excursion"] = None
+    try:
+        res = po.plan_pmht(sc, cfg)
+    except po.PmhtOptError as err:
+        row.update(outcome="error", raised=type(err).__name__, message=str(err)[:300])
+    else:
+        row.update(
+            outcome="plan",
+            coverage=res.coverage(radius),
+            distance=res.total_distance,
+            extra_excursion=res.max_excursion() - excursion(sc.start_positions, sc.bounds),
+            fallbacks=int(np.sum(res.history.fallbacks)),
+        )
+    row.setdefault("fallbacks", None)
+    row["seconds"] = time.perf_counter() - t0
+    return row
+
+
+TABLE = TrialTable(
+    name="guaranteed_visits",
+    fn=trial,
+    schema=Schema(
+        params={"kind": "str", "seed": "int", "radius": "float", "backend": "str"},
+        values={
+            "outcome": "str",
+            "raised": "str?",
+            "message": "str?",
+            "coverage": "float?",
+            "distance": "float?",
+            "extra_excursion": "float?",
+            "fallbacks": "int?",
+            "seconds": "float",
+        },
+    ),
+    checks={
+        "seconds": Check("skip", reason="wall time"),
+        "distance": Check("close", rtol=1e-6, atol=1e-9, reason="last digits of the solvers' iterates"),
+        "extra_excursion": Check(
+            "close", rtol=1e-6, atol=1e-9, reason="last digits of the solvers' iterates"
+        ),
+        "message": Check("skip", reason="figures in messages carry the solvers' last digits"),
+    },
+)
+
+
+def summarise(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Per scenario, radius and backend: plans, errors, full coverage, excursions, time."""
+    df = frame(rows)
+    df = df[df["error"] == ""]
+    out = []
+    for (kind, radius, backend), g in df.groupby(["kind", "radius", "backend"]):
+        plans = g[g["outcome"] == "plan"]
+        out.append(
+            {
+                "scenario": kind,
+                "radius": float(radius),
+                "backend": backend,
+                "trials": len(g),
+                "errors": int((g["outcome"] != "plan").sum()),
+                "error_classes": ", ".join(sorted(set(g["raised"].dropna()))),
+                "full_coverage": int((plans["coverage"] >= 1.0).sum()),
+                "over_half_unit_out": int((plans["extra_excursion"] > 0.5 + 1e-9).sum()),
+                "over_one_unit_out": int((plans["extra_excursion"] > 1.0).sum()),
+                "max_extra_excursion": float(plans["extra_excursion"].max()) if len(plans) else 0.0,
+                "mean_distance": float(plans["distance"].mean()) if len(plans) else 0.0,
+                "mean_seconds": float(g["seconds"].mean()),
+                "median_seconds": float(g["seconds"].median()),
+            }
+        )
+    return out
+
+
+def markdown(table: Sequence[Mapping[str, Any]]) -> str:
+    """The summary as a markdown table."""
+    lines = [
+        "| scenario | radius | backend | trials | errors | full coverage | > 0.5 out | > 1 out | max out "
+        "| mean distance | mean s | median s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for s in table:
+        cells = (
+            s["scenario"],
+            f"{s['radius']:g}",
+            s["backend"],
+            s["trials"],
+            f"{s['errors']}" + (f" ({s['error_classes']})" if s["error_classes"] else ""),
+            s["full_coverage"],
+            s["over_half_unit_out"],
+            s["over_one_unit_out"],
+            f"{s['max_extra_excursion']:.3f}",
+            f"{s['mean_distance']:.1f}",
+            f"{s['mean_seconds']:.2f}",
+            f"{s['median_seconds']:.2f}",
+        )
+        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of ``pmht-opt study guaranteed_visits``."""
+
+    trials: int = 100
+    radii: tuple[float, ...] = (0.1, 0.3)
+    kinds: tuple[str, ...] = KINDS
+    backends: tuple[str, ...] = ("clarabel",)
+
+    def __post_init__(self) -> None:
+        positive_int("--trials", self.trials)
+        if not self.radii or not all(r > 0 for r in self.radii):
+            raise ConfigError(f"--radii: expected positive radii, got {list(self.radii)}.")
+        for name, values, known in (("--kinds", self.kinds, KINDS), ("--backends", self.backends, BACKENDS)):
+            bad = [v for v in values if v not in known]
+            if bad or not values:
+                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
+
+    @staticmethod
+    def add_arguments(p: argparse.ArgumentParser) -> None:
+        """The command-line options of this study."""
+        p.add_argument("--trials", type=int, default=100, help="seeds per scenario and radius")
+        p.add_argument("--radii", nargs="+", type=float, default=[0.1, 0.3], help="visit radii")
+        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
+        p.add_argument("--backends", nargs="+", default=["clarabel"], choices=list(BACKENDS))
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> Options:
+        """The options from parsed arguments."""
+        return cls(int(ns.trials), tuple(ns.radii), tuple(ns.kinds), tuple(ns.backends))
+
+
+def params(options: Options) -> list[dict[str, Any]]:
+    """The trials of a run."""
+    return [
+        {"kind": k, "seed": s, "radius": float(r), "backend": b}
+        for b in options.backends
+        for r in options.radii
+        for k in options.kinds
+        for s in range(options.trials)
+    ]
+
+
+def main(run: RunOptions, options: Options) -> list[Path]:
+    """Run the study into ``run.out``: ``guaranteed_visits.jsonl``, the summary and its table."""
+    out = run.prepare()
+    with run.executor() as ex:
+        rows = run_trials(
+            TABLE,
+            params(options),
+            out,
+            executor=ex,
+            progress=not run.quiet,
+            label="guaranteed_visits",
+            resume=not run.fresh,
+        )
+    table = summarise(rows)
+    text = markdown(table)
+    if not run.quiet:
+        print(text)
+    return [TABLE.path(out), *write_summary(out, "guaranteed_visits", table, text)]
+
+
+if __name__ == "__main__":
+    from studies.cli import main as cli_main
+
+    sys.exit(
+        cli_main(
+            [
+                "guaranteed_visits",
+                "--out",
+                str(Path(__file__).parent / "results" / "guaranteed_visits"),
+                *sys.argv[1:],
+            ]
+        )
+    )

@@ -1,0 +1,126 @@
+"""Constraints a user can trust: the cases where plans used to break their constraints silently, fail on
+feasible problems, or leave infeasible ones unnamed. Each gives a verified plan or the right error now.
+
+Measured on the returned positions here, independently of the planner's own verification.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pmht_opt as po
+from pmht_opt.constraints.base import ConstraintContext
+from pmht_opt.result import excursion
+from pmht_opt.verify import verify_plan
+from studies.constraints_stress import l_shaped, measure
+
+BACKENDS = ["clarabel", "osqp", "cvxpy"]
+
+
+def _steps(res: po.PlanResult) -> np.ndarray:
+    return np.linalg.norm(np.diff(res.positions, axis=1), axis=2)
+
+
+@pytest.mark.parametrize("vmax", [1e-3, 0.02])
+def test_speed_limits_hold_on_the_positions_of_the_l_shaped_scenario(vmax: float) -> None:
+    # Feasible (the platforms start at rest); clarabel used to end "almost solved" on both.
+    sc = l_shaped()
+    res = po.plan_pmht(sc, po.PMHTConfig(solver="clarabel", max_iter=10, constraints=[po.SpeedLimit(vmax)]))
+    assert _steps(res).max() <= vmax * sc.dt * (1 + 1e-6)
+    assert res.max_speed <= vmax * (1 + 1e-6)  # measured on positions, as the user sees it
+    assert res.max_speed_state <= vmax * (1 + 1e-6)
+    assert measure(sc, res.positions, [po.SpeedLimit(vmax)])[po.SpeedLimit(vmax).name] <= 1e-6
+
+
+@pytest.mark.parametrize("solver", BACKENDS)
+@pytest.mark.parametrize("vmax", [0.02, 1e-4])
+def test_speed_and_visits_that_cannot_hold_together_are_named(solver: str, vmax: float) -> None:
+    # The limit allows 2 x 300 x vmax units of travel; visiting the L needs about 17. The cvxpy backend
+    # used to return a plan jumping 1.87 per step here, reported as meeting the limit.
+    sc = l_shaped()
+    cons = [po.SpeedLimit(vmax), po.VisitAll(0.05)]
+    with pytest.raises(po.InfeasibleError, match=r"VisitAll\(0.05\) and SpeedLimit"):
+        po.plan_pmht(sc, po.PMHTConfig(solver=solver, constraints=cons))
+
+
+@pytest.mark.parametrize("solver", BACKENDS)
+def test_an_acceleration_limit_too_small_for_a_far_end_is_named_before_solving(solver: str) -> None:
+    # From rest, |a| <= 1e-9 moves a platform at most 1e-9 T (T + 1) / 2 ~ 1.3e-4 in 500 steps.
+    sc = po.paper_scenario("A", seed=0)
+    cons = [po.AccelLimit(1e-9), po.Terminal(position=(5.0, 5.0), platforms=[0])]
+    with pytest.raises(po.InfeasibleError, match=r"Terminal\(position\) and AccelLimit\(1e-09\)"):
+        po.plan_pmht(sc, po.PMHTConfig(solver=solver, constraints=cons))
+
+
+def test_verification_is_relative_to_the_limit() -> None:
+    # A platform drifting 1e-7 per step breaks a limit of 1e-9 by a factor of 100: an absolute
+    # tolerance of 1e-6 would pass it.
+    sc = po.Scenario(locales=[[1.0, 1.0]], starts=[[0.0, 0.0]], horizon=4, bounds=(0, 2, 0, 2))
+    states = np.zeros((1, 5, 6))
+    states[0, :, 0] = 1e-7 * np.arange(5)
+    lim = po.SpeedLimit(1e-9)
+    report = lim.violation(states, ConstraintContext(scenario=sc, states=states))
+    with pytest.raises(po.SolverError, match=r"breaks SpeedLimit\(1e-09\) on platform 0"):
+        verify_plan("clarabel", sc, [lim], [report])
+    # Soft constraints are reported, not refused.
+    verify_plan("clarabel", sc, [po.SpeedLimit(1e-9, soft=True)], [report])
+
+
+def test_starts_moving_faster_than_the_limit_are_refused_before_planning() -> None:
+    sc = po.Scenario(
+        locales=[[5.0, 5.0], [6.0, 5.0]],
+        starts=[[0.0, 5.0, 0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0, 0.5, 0.0]],
+        horizon=50,
+        bounds=(0, 10, 0, 10),
+    )
+    with pytest.raises(po.ScenarioError, match=r"platform 0 starts with speed 5, above SpeedLimit\(1\)"):
+        po.plan_pmht(sc, po.PMHTConfig(solver="clarabel", max_iter=2, constraints=[po.SpeedLimit(1.0)]))
+    # A start within the limit plans, and the limit holds from the first step.
+    res = po.plan_pmht(sc, po.PMHTConfig(solver="clarabel", max_iter=3, constraints=[po.SpeedLimit(6.0)]))
+    assert res.max_speed <= 6.0 * (1 + 1e-6)
+
+
+def test_a_binding_speed_limit_on_b_solves_hard_and_soft() -> None:
+    # Scenario B, seed 0, T = 150: the limit binds over long stretches; clarabel used to fail with
+    # "InsufficientProgress" / "AlmostSolved", OSQP's soft answer ended 0.125-0.175 over the limit.
+    sc = po.paper_scenario("B", seed=0, horizon=150)
+    vmax = 0.06
+    hard = po.plan_pmht(sc, po.PMHTConfig(solver="clarabel", max_iter=12, constraints=[po.SpeedLimit(vmax)]))
+    assert _steps(hard).max() <= vmax * (1 + 1e-6)
+    soft = po.plan_pmht(
+        sc, po.PMHTConfig(solver="clarabel", max_iter=12, constraints=[po.SpeedLimit(vmax, soft=True)])
+    )
+    # Weight 1e4 on the excess: the soft optimum is within rounding of the limit.
+    assert soft.constraint_reports()[0].max_violation <= 1e-6 * vmax
+    osqp_soft = po.plan_pmht(
+        sc, po.PMHTConfig(solver="osqp", max_iter=12, constraints=[po.SpeedLimit(vmax, soft=True)])
+    )
+    assert osqp_soft.max_speed <= vmax * (1 + 3e-3)
+
+
+def test_guaranteed_visits_on_b_seed_4_neither_fail_nor_run_away() -> None:
+    # The visits first imposed at their MAP times used to demand a manoeuvre of 458 units.
+    sc = po.paper_scenario("B", seed=4)
+    res = po.plan_pmht(sc, po.PMHTConfig(solver="clarabel", constraints=[po.VisitAll(0.1)]))
+    assert res.coverage(0.1) == 1.0
+    assert sc.bounds is not None
+    start_out = excursion(sc.start_positions, sc.bounds)
+    assert res.max_excursion() <= start_out + 0.5
+
+
+@pytest.mark.parametrize(
+    ("build", "field"),
+    [
+        (lambda: po.SpeedLimit("0.5"), "SpeedLimit"),
+        (lambda: po.SpeedLimit(True), "SpeedLimit"),
+        (lambda: po.SpeedLimit(0.5, platforms=[0.7]), "platforms"),
+        (lambda: po.SpeedLimit(0.5, platforms=[1, 1]), "platforms"),
+        (lambda: po.SpeedLimit(0.5, sides=10**9), "sides"),
+        (lambda: po.AccelLimit(float("inf")), "AccelLimit"),
+        (lambda: po.VisitAll(-0.1), "VisitAll.radius"),
+    ],
+)
+def test_nonsense_parameters_are_config_errors_naming_the_field(build: object, field: str) -> None:
+    with pytest.raises(po.ConfigError, match=field):
+        build()  # type: ignore[operator]
