@@ -28,6 +28,12 @@ from pmht_opt.ordering.tour import TourResult, check_routes
 from pmht_opt.planner import PMHTConfig, ProgressCallback
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario
+from pmht_opt.stopping import Converged
+
+#: When :func:`plan_smoothed` stops by default: the tour fixes the assignment, so once the visits are
+#: at full strength the paths only polish; a position change below 3e-4 of the area for three
+#: iterations marks the end of that.
+SMOOTHED_CONVERGED = Converged(path_rtol=3e-4, stable=3)
 
 #: How a platform's horizon is cut into sub-batches.
 SPLITS = ("equal", "distance")
@@ -70,7 +76,9 @@ class TourVisits(VisitAll):
 
     :class:`~pmht_opt.constraints.VisitAll` with the visits fixed by the tour: the platform is the
     tour's, and the step is the E-step's most probable one inside the locale's window (re-chosen
-    every iteration). Imposed from the first iteration. Used by :func:`plan_smoothed`.
+    every iteration). Imposed from the first iteration. Used by :func:`plan_smoothed`. The paths are
+    not kept near the area by default (``keep_within=None``): the windows follow the tour, whose
+    polyline stays inside it, so the visits never ask for the loops that fixed MAP times can.
     """
 
     def __init__(
@@ -81,6 +89,7 @@ class TourVisits(VisitAll):
         sides: int = DEFAULT_SIDES,
         **kwargs: Any,
     ) -> None:
+        kwargs.setdefault("keep_within", None)
         super().__init__(radius, warmup=0, sides=sides, ramp=0, **kwargs)
         self.platform = np.asarray(platform, dtype=int)
         self.windows = np.asarray(windows, dtype=int)
@@ -94,8 +103,8 @@ class TourVisits(VisitAll):
             times[n] = lo + int(np.argmax(es.locale_weights(n)[lo - 1 : hi, m]))
         return self.platform, times
 
-    def blocks(self, ctx: ConstraintContext) -> list[Block]:
-        out = super().blocks(ctx)
+    def visit_blocks(self, ctx: ConstraintContext) -> list[Block]:
+        out = super().visit_blocks(ctx)
         for blk in out:
             # The visit step moves inside the locale's window from one iteration to the next.
             blk.span = self.windows[np.flatnonzero(self.platform == blk.platform)]
@@ -141,6 +150,7 @@ def plan_smoothed(
     sides: int = DEFAULT_SIDES,
     callback: ProgressCallback | None = None,
     callbacks: EMCallbacks | None = None,
+    converge: Converged | None = SMOOTHED_CONVERGED,
 ) -> PlanResult:
     """Smooth paths that pass every locale in the order of ``tour`` (GA-TSP PMHT smoothed).
 
@@ -167,6 +177,12 @@ def plan_smoothed(
         Called as ``callback(iteration, objective)`` after every iteration.
     callbacks
         Observers of the EM run (:class:`~pmht_opt.em.EMCallbacks`).
+    converge
+        Stop once the paths have settled (:class:`~pmht_opt.stopping.Converged`), within the
+        configuration's iteration limit; ``None`` runs every iteration. The default
+        (:data:`SMOOTHED_CONVERGED`) was chosen on recorded runs of A, B and C: it stops after about
+        30 iterations instead of 100, with total distances within 0.15% of the 100-iteration plans and
+        the same coverage (docs/decisions.md).
 
     Returns
     -------
@@ -199,6 +215,7 @@ def plan_smoothed(
         update_platform_prior=False,
         anneal=None,
         constraints=(*cfg.constraints, visits),
+        stop=cfg.stop if converge is None else (*cfg.stop, converge),
     )
     time_prior = np.zeros((N, T))
     for n, (lo, hi) in enumerate(windows):

@@ -164,6 +164,10 @@ class VisitAll(Constraint):
         return choose_visits(ctx, self.radius_for(ctx.scenario))
 
     def blocks(self, ctx: ConstraintContext) -> list[Block]:
+        return self.visit_blocks(ctx) + self.containment(ctx.scenario)
+
+    def visit_blocks(self, ctx: ConstraintContext) -> list[Block]:
+        """The visit discs of this iteration, one block per platform."""
         platform, time = self.visits(ctx)
         rho = self.radius_for(ctx.scenario)
         gap = np.hypot(*(ctx.states[platform, time][:, POS] - ctx.scenario.locales).T) - rho
@@ -184,7 +188,7 @@ class VisitAll(Constraint):
                         labels=[f"locale {n}" for n in mine.tolist()],
                     )
                 )
-        return out + self.containment(ctx.scenario)
+        return out
 
     def containment(self, scenario: Scenario) -> list[Block]:
         """The rows of ``keep_within`` (parameters), one box per platform."""
