@@ -30,6 +30,7 @@ STUDIES: dict[str, tuple[str, str]] = {
     "solvers": ("studies.compare_solvers", "M-step backends against the kalman reference: time, gaps"),
     "scaling": ("studies.scaling", "plan time and peak memory as locales, horizon and platforms grow"),
     "anneal": ("studies.anneal", "plain against annealed EM with both time-prior settings"),
+    "coverage": ("studies.coverage", "distance at equal coverage over sensor radii, Pareto fronts"),
 }
 
 

@@ -32,6 +32,7 @@ import numpy as np
 
 from pmht_opt.constraints.base import Constraint, ConstraintContext, ConstraintReport
 from pmht_opt.constraints.blocks import Block, disc_block
+from pmht_opt.constraints.terminal import Terminal
 from pmht_opt.em import EMRun
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.model import POS, PX, PY, VEL
@@ -122,25 +123,39 @@ def _visit_steps(s: np.ndarray, length: float, T: int, apart: np.ndarray) -> np.
     return t
 
 
-def make_track(scenario: Scenario, routes: Sequence[np.ndarray], points: np.ndarray) -> Track:
-    """Constant-speed polylines through each route's visit points ``points (N, 2)``."""
+def make_track(
+    scenario: Scenario,
+    routes: Sequence[np.ndarray],
+    points: np.ndarray,
+    ends: np.ndarray | None = None,
+    reserve: int = 0,
+) -> Track:
+    """Constant-speed polylines through each route's visit points ``points (N, 2)``.
+
+    ``ends (M, 2)``, where not NaN, is a last vertex after the visits (a terminal position); the
+    polylines are then flown in the first ``T - reserve`` steps and the last ``reserve`` steps hold
+    the final point, so that a platform can come to rest.
+    """
     T, N = scenario.horizon, scenario.n_locales
+    T_fly = max(T - reserve, 1)
     initial = np.repeat(scenario.initial_states[:, None, :], T + 1, axis=1)
     visit_time = np.ones(N, dtype=int)
     platform = np.zeros(N, dtype=int)
     steps = np.arange(1, T + 1)
     pts, times, owner = [], [], []
     for m, route in enumerate(routes):
-        if len(route) == 0:
+        end = None if ends is None or np.any(np.isnan(ends[m])) else ends[m]
+        if len(route) == 0 and end is None:
             continue  # an idle platform: no pull, it stays at its start
-        poly = np.vstack([scenario.start_positions[m], points[route]])
+        poly = np.vstack([scenario.start_positions[m], points[route], *([end] if end is not None else [])])
         s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(poly, axis=0).T))])
         length = float(s[-1])
-        apart = np.ones(len(route), dtype=bool)
-        apart[1:] = np.hypot(*np.diff(points[route], axis=0).T) > 1e-9
-        visit_time[route] = _visit_steps(s[1:], length, T, apart)
-        platform[route] = m
-        arc = steps / T * length
+        if len(route):
+            apart = np.ones(len(route), dtype=bool)
+            apart[1:] = np.hypot(*np.diff(points[route], axis=0).T) > 1e-9
+            visit_time[route] = _visit_steps(s[1 : len(route) + 1], length, T_fly, apart)
+            platform[route] = m
+        arc = np.minimum(steps / T_fly, 1.0) * length
         xy = np.column_stack([np.interp(arc, s, poly[:, 0]), np.interp(arc, s, poly[:, 1])])
         pts.append(xy)
         times.append(steps)
@@ -149,6 +164,8 @@ def make_track(scenario: Scenario, routes: Sequence[np.ndarray], points: np.ndar
         body[:] = 0.0
         body[:, POS] = xy
         body[:, VEL] = np.gradient(np.vstack([poly[:1], xy]), scenario.dt, axis=0)[1:]
+    if not pts:  # every platform idle: one harmless measurement at a start keeps the run well posed
+        pts, times, owner = [scenario.start_positions[:1]], [np.array([1])], [np.array([0])]
     return Track(
         points=np.vstack(pts),
         times=np.concatenate(times),
@@ -157,6 +174,25 @@ def make_track(scenario: Scenario, routes: Sequence[np.ndarray], points: np.ndar
         platform=platform,
         initial=initial,
     )
+
+
+def terminal_ends(scenario: Scenario, constraints: Sequence[Constraint]) -> tuple[np.ndarray | None, int]:
+    """Final positions ``(M, 2)`` (NaN: free) the user's :class:`~pmht_opt.Terminal` constraints ask
+    for, and the steps to hold at the end (a tenth of the horizon when there is a terminal
+    condition, so a platform can slow down; 0 otherwise)."""
+    ends = np.full((scenario.n_platforms, 2), np.nan)
+    found = False
+    for con in constraints:
+        if not isinstance(con, Terminal):
+            continue
+        found = True
+        targets = con.targets(scenario)
+        if targets is not None:
+            for m in con.applies_to(scenario):
+                ends[m] = targets[0 if targets.shape[0] == 1 else m]
+    if not found:
+        return None, 0
+    return ends, max(1, scenario.horizon // 10)
 
 
 def track_routes(
@@ -175,7 +211,8 @@ def track_routes(
     the synthetic measurements). Raises :class:`~pmht_opt.exceptions.InfeasibleError` when the discs
     cannot be met together with the user's constraints.
     """
-    track = make_track(scenario, routes, points)
+    ends, reserve = terminal_ends(scenario, config.constraints)
+    track = make_track(scenario, routes, points, ends, reserve)
     K, M, T = track.points.shape[0], scenario.n_platforms, scenario.horizon
     derived = scenario.replace(locales=track.points)
     time_prior = np.zeros((K, T))
