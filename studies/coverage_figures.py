@@ -3,7 +3,8 @@
 Left panel: mean total distance of every full-coverage planner against the coverage radius. Right
 panel: at each radius of the study, every planner as a point (mean coverage at that radius, mean
 distance), the full-coverage planners at coverage 1 and the partial ones wherever they land, with the
-Pareto front of the points (no other point both shorter and covering more) drawn as a step line.
+Pareto front of the points (no other point both shorter and covering more) drawn as a step line;
+points more than 1.6 times the shortest distance are left out of the frame.
 """
 
 from __future__ import annotations
@@ -67,7 +68,12 @@ def write_figures(rows: Sequence[Mapping[str, Any]], radii: Sequence[float], out
                     right.scatter(cov[key], dist, marker=markers[method], color=f"C{i}", s=30)
             front = pareto_front(pts)
             if front:
-                right.step(*zip(*front, strict=True), where="post", color=f"C{i}", label=f"radius {key}")
+                right.step(*zip(*front, strict=True), where="pre", color=f"C{i}", label=f"radius {key}")
+        shown = [d for (m, r), (d, _) in means.items()]
+        low = min(shown)
+        right.set_ylim(
+            0.95 * low, min(max(shown) * 1.02, 1.6 * low)
+        )  # far-off points (e.g. pmht-paper) left out
         for method, mark in markers.items():
             right.scatter([], [], marker=mark, color="0.4", label=method)
         right.set(xlabel="mean coverage at the radius", ylabel="mean total distance", title="Pareto fronts")

@@ -22,7 +22,9 @@ from pmht_opt.scenario import Scenario
 #: Fraction of the coverage radius at which the visit polylines touch the discs: the rest is room for
 #: the smoother to round the polylines' corners without leaving a disc.
 DEFAULT_SHRINK = 0.8
-#: Iterations of the final smoothing when a user constraint is re-linearised at each iterate.
+#: Iterations of the final smoothing: each re-chooses the visit steps on the last iterate.
+ITERATIONS = 3
+#: The same when a user constraint is re-linearised at each iterate (obstacles).
 DYNAMIC_ITERATIONS = 10
 
 
@@ -77,7 +79,7 @@ def _settings(scenario: Any, radius: Any, config: Any, opts: dict[str, Any]) -> 
     iterations = opts["iterations"]
     if iterations is None:
         dynamic = any(c.dynamic for c in cfg.constraints)
-        iterations = DYNAMIC_ITERATIONS if dynamic else 1
+        iterations = DYNAMIC_ITERATIONS if dynamic else ITERATIONS
     budget = opts["time_budget"]
     if opts["callback"] is not None and not callable(opts["callback"]):
         raise ConfigError(f"callback: expected a callable, got {type(opts['callback']).__name__}.")
@@ -182,8 +184,9 @@ def plan_coverage(
     shrink
         Fraction of ``radius`` at which the polylines touch the discs, in ``(0, 1]``.
     iterations
-        Iterations of the final smoothing; default 1 (every iteration is the same M-step) or 10 with a
-        constraint that is re-linearised at each iterate (obstacles).
+        Iterations of the final smoothing, each of which moves every locale's visit step to where the
+        last iterate passes closest; default 3, or 10 with a constraint that is re-linearised at each
+        iterate (obstacles).
     time_budget
         Seconds after which no new candidate or round is started (at least one candidate is always
         smoothed). A wall-clock limit makes the result depend on the machine: for interactive use only.

@@ -1,25 +1,27 @@
 r"""Smooth paths that follow the visit polylines and pass every locale's disc (the last stage of
 :func:`~pmht_opt.coverage.plan_coverage`).
 
-Each platform flies its polyline (start, then its visit points in order) at constant speed over the
-horizon: at step :math:`t` it should be at arc length :math:`t L_m / T`, and it reaches visit point
-:math:`k` at step :math:`\tau_k = \mathrm{round}(s_k T / L_m)`. The path is the model's smoother run on
-those positions as synthetic measurements, one per step, each with the scenario's penalty ``r``: the
-M-step of section 4.4 of docs/model.md with unit weights, the same motion prior (``q``) every other
-planner of the package uses, so the paths are exactly as smooth as the model makes any path that
-follows these points. On top, every locale gets a hard constraint: within the coverage radius of its
-platform's position at step :math:`\tau_n` (:class:`VisitDiscs`), which is what guarantees coverage.
+Each platform flies its polyline (start, then its visit points in order) over the horizon with a
+:class:`SpeedProfile`: from rest, speeding up over the first steps, then at constant speed, so that
+it is at arc length :math:`s(t)` at step :math:`t` and reaches visit point :math:`k` near step
+:math:`\tau_k = s^{-1}(s_k)`. The path is the model's smoother run on the positions :math:`s(t)` as
+synthetic measurements, one per step, each with the scenario's penalty ``r``: the M-step of
+docs/model.md section 4.4 with unit weights and the same motion prior (``q``) as every other planner
+of the package, so the paths are exactly as smooth as the model makes any path that tracks these
+points. On top, every locale's disc is a hard constraint at one step near :math:`\tau_n`
+(:class:`VisitDiscs`), which is what guarantees coverage.
 
-A tour's paths are sparse pulls towards the locales in :func:`~pmht_opt.plan_smoothed`; here the
-pull is dense and along straight legs, so the smoother rounds the polyline's corners (inwards, into
-the discs the corners wrap) instead of swinging between sparse points, and the path length stays near
-the polyline's.
+:func:`~pmht_opt.plan_smoothed` pulls a tour's paths towards the locales only, sparsely, and the
+smoother swings between them; here the pull is dense and along the straight legs, so the path stays
+near the polyline and its length near the polyline's: the smoother rounds the corners (shorter), and
+the discs hold it where rounding would leave them. The polylines touch the discs at a fraction of the
+radius (``shrink`` in :func:`~pmht_opt.coverage.plan_coverage`), which leaves the rounding room.
 
 The run is an :class:`~pmht_opt.em.EMRun` on a derived scenario whose "locales" are the synthetic
-measurements, each with its time and platform fixed by its priors (so every E-step gives the same
-weights and every iteration is the same M-step): user constraints that are linearised at the current
-iterate (obstacles) are re-linearised at each iteration, and the run's constraint reports measure
-everything on the returned paths.
+measurements, each with its time and platform fixed by its priors, so every E-step gives the same
+weights; the iterations differ only in the constraints: each moves every locale's visit step to where
+the last iterate passes closest, and re-linearises the user's constraints that depend on the iterate
+(obstacles). The run's constraint reports measure everything on the returned paths.
 """
 
 from __future__ import annotations
@@ -42,49 +44,79 @@ from pmht_opt.scenario import Scenario
 
 
 class VisitDiscs(Constraint):
-    """Locale ``n`` within ``radius`` of platform ``platform[n]`` at step ``times[n]`` (fixed).
+    """Locale ``n`` within ``radius`` of platform ``platform[n]`` at one step near ``times[n]``.
 
-    Unlike :class:`~pmht_opt.constraints.VisitAll`, the platform and the step are given, and the
-    centres need not be the run's locales: the coverage planner's run pulls towards synthetic
-    measurements while the discs stay on the real locales.
+    Unlike :class:`~pmht_opt.constraints.VisitAll`, the platform is given and the centres need not be
+    the run's locales: the coverage planner's run pulls towards synthetic measurements while the discs
+    stay on the real locales. The step is re-chosen at every iteration: the step within ``window`` of
+    ``times[n]`` at which the current iterate is closest to the locale. A path that met the discs at
+    the last iteration's steps meets them at these too, so once one iteration is feasible every later
+    one is.
     """
 
     needs = frozenset({"soc"})
+    dynamic = True
 
-    def __init__(self, platform: np.ndarray, times: np.ndarray, centres: np.ndarray, radius: float) -> None:
+    def __init__(
+        self, platform: np.ndarray, times: np.ndarray, centres: np.ndarray, radius: float, window: int = 0
+    ) -> None:
         super().__init__()
         self.platform = np.asarray(platform, dtype=int)
         self.times = np.asarray(times, dtype=int)
         self.centres = np.asarray(centres, dtype=float)
         self.radius = float(radius)
+        self.window = int(window)
 
     @property
     def name(self) -> str:
         return f"VisitDiscs({self.radius:g})"
 
+    def visit_steps(self, ctx: ConstraintContext) -> np.ndarray:
+        """``(N,)`` the step of each locale's disc in the M-step of ``ctx``."""
+        T = ctx.scenario.horizon
+        if self.window == 0:
+            return self.times
+        pos = ctx.states[:, :, POS]
+        out = self.times.copy()
+        for n, (m, t) in enumerate(zip(self.platform, self.times, strict=True)):
+            lo, hi = max(1, t - self.window), min(T, t + self.window)
+            out[n] = lo + int(np.argmin(np.hypot(*(pos[m, lo : hi + 1] - self.centres[n]).T)))
+        return out
+
     def blocks(self, ctx: ConstraintContext) -> list[Block]:
+        times, T = self.visit_steps(ctx), ctx.scenario.horizon
         out = []
         for m in range(ctx.scenario.n_platforms):
             mine = np.flatnonzero(self.platform == m)
             if mine.size:
-                out.append(
-                    disc_block(
-                        m,
-                        ctx.scenario.horizon,
-                        self.times[mine],
-                        (PX, PY),
-                        self.centres[mine],
-                        np.full(mine.size, self.radius),
-                        labels=[f"locale {n}" for n in mine.tolist()],
-                    )
+                blk = disc_block(
+                    m,
+                    T,
+                    times[mine],
+                    (PX, PY),
+                    self.centres[mine],
+                    np.full(mine.size, self.radius),
+                    labels=[f"locale {n}" for n in mine.tolist()],
                 )
+                nominal = self.times[mine]
+                blk.span = np.column_stack(
+                    [np.maximum(nominal - self.window, 1), np.minimum(nominal + self.window, T)]
+                )
+                out.append(blk)
         return out
 
     def violation(self, states: np.ndarray, ctx: ConstraintContext) -> ConstraintReport:
         report = super().violation(states, ctx)
-        dist = np.hypot(*(states[self.platform, self.times][:, POS] - self.centres).T)
+        times = self.visit_steps(ctx)
+        dist = np.hypot(*(states[self.platform, times][:, POS] - self.centres).T)
         report.details["visits_met"] = int(np.sum(dist <= self.radius * (1.0 + 1e-6)))
         return report
+
+
+#: A locale's disc may be met up to ``T // WINDOW_FRACTION`` steps from where its visit point is.
+WINDOW_FRACTION = 25
+#: The speed ramps up from rest over ``T // RAMP_FRACTION`` steps (and down before a terminal point).
+RAMP_FRACTION = 20
 
 
 @dataclasses.dataclass
@@ -99,14 +131,58 @@ class Track:
     initial: np.ndarray  # (M, T+1, 6) the polylines at constant speed, as states
 
 
-def _visit_steps(s: np.ndarray, length: float, T: int, apart: np.ndarray) -> np.ndarray:
-    """Steps ``1..T`` at which arc lengths ``s`` (ascending) are reached at constant speed.
+@dataclasses.dataclass(frozen=True)
+class SpeedProfile:
+    """Arc length against time along a polyline of ``length``, flown in ``steps`` steps.
+
+    The speed ramps up linearly from rest over the first ``ramp_in`` steps (platforms start at rest: a
+    measurement already moving at full speed at ``t = 1`` would cost a jolt), is constant, and ramps
+    down to rest over the last ``ramp_out`` steps (0: arrive at full speed).
+    """
+
+    length: float
+    steps: int
+    ramp_in: int
+    ramp_out: int
+
+    @property
+    def speed(self) -> float:
+        """The cruising speed."""
+        return self.length / max(self.steps - 0.5 * (self.ramp_in + self.ramp_out), 1e-12)
+
+    def arc(self, t: np.ndarray) -> np.ndarray:
+        """Arc length reached at (real) times ``t``."""
+        v, a, b, n = self.speed, self.ramp_in, self.ramp_out, self.steps
+        t = np.clip(np.asarray(t, dtype=float), 0.0, n)
+        s = v * (t - 0.5 * a)
+        if a > 0:
+            s = np.where(t < a, v * t * t / (2 * a), s)
+        if b > 0:
+            s = np.where(t > n - b, self.length - v * (n - t) ** 2 / (2 * b), s)
+        return np.minimum(s, self.length)
+
+    def time(self, s: np.ndarray) -> np.ndarray:
+        """Times at which arc lengths ``s`` are reached (the inverse of :meth:`arc`)."""
+        v, a, b, n = self.speed, self.ramp_in, self.ramp_out, self.steps
+        s = np.clip(np.asarray(s, dtype=float), 0.0, self.length)
+        t = s / v + 0.5 * a
+        if a > 0:
+            t = np.where(s < 0.5 * v * a, np.sqrt(2 * a * s / v), t)
+        if b > 0:
+            t = np.where(
+                s > self.length - 0.5 * v * b, n - np.sqrt(np.maximum(2 * b * (self.length - s) / v, 0)), t
+            )
+        return t
+
+
+def _visit_steps(t_real: np.ndarray, T: int, apart: np.ndarray) -> np.ndarray:
+    """Steps ``1..T`` nearest to the times ``t_real`` (ascending) at which the visit points are reached.
 
     Kept in order, and one step apart where ``apart[k]`` (visit point ``k`` differs from ``k - 1``):
     two discs that no one point meets cannot share a step. Raises ``ConfigError`` when the horizon has
     fewer steps than the route has distinct visit points.
     """
-    t = np.clip(np.rint(s / length * T).astype(int), 1, T) if length > 0 else np.ones(s.shape, dtype=int)
+    t = np.clip(np.rint(t_real).astype(int), 1, T)
     gap = apart.astype(int)
     gap[0] = 0
     for k in range(1, t.size):
@@ -130,7 +206,8 @@ def make_track(
     ends: np.ndarray | None = None,
     reserve: int = 0,
 ) -> Track:
-    """Constant-speed polylines through each route's visit points ``points (N, 2)``.
+    """Polylines through each route's visit points ``points (N, 2)``, flown with a
+    :class:`SpeedProfile` (from rest, then at constant speed).
 
     ``ends (M, 2)``, where not NaN, is a last vertex after the visits (a terminal position); the
     polylines are then flown in the first ``T - reserve`` steps and the last ``reserve`` steps hold
@@ -138,6 +215,7 @@ def make_track(
     """
     T, N = scenario.horizon, scenario.n_locales
     T_fly = max(T - reserve, 1)
+    ramp = min(max(T // RAMP_FRACTION, 1), T_fly // 3)
     initial = np.repeat(scenario.initial_states[:, None, :], T + 1, axis=1)
     visit_time = np.ones(N, dtype=int)
     platform = np.zeros(N, dtype=int)
@@ -149,13 +227,13 @@ def make_track(
             continue  # an idle platform: no pull, it stays at its start
         poly = np.vstack([scenario.start_positions[m], points[route], *([end] if end is not None else [])])
         s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(poly, axis=0).T))])
-        length = float(s[-1])
+        profile = SpeedProfile(float(s[-1]), T_fly, ramp, ramp if end is not None or reserve else 0)
         if len(route):
             apart = np.ones(len(route), dtype=bool)
             apart[1:] = np.hypot(*np.diff(points[route], axis=0).T) > 1e-9
-            visit_time[route] = _visit_steps(s[1 : len(route) + 1], length, T_fly, apart)
+            visit_time[route] = _visit_steps(profile.time(s[1 : len(route) + 1]), T_fly, apart)
             platform[route] = m
-        arc = np.minimum(steps / T_fly, 1.0) * length
+        arc = profile.arc(steps)
         xy = np.column_stack([np.interp(arc, s, poly[:, 0]), np.interp(arc, s, poly[:, 1])])
         pts.append(xy)
         times.append(steps)
@@ -219,7 +297,9 @@ def track_routes(
     time_prior[np.arange(K), track.times - 1] = 1.0
     platform_prior = np.zeros((K, M))
     platform_prior[np.arange(K), track.owner] = 1.0
-    discs = VisitDiscs(track.platform, track.visit_time, scenario.locales, radius)
+    discs = VisitDiscs(
+        track.platform, track.visit_time, scenario.locales, radius, max(1, T // WINDOW_FRACTION)
+    )
     run_cfg = dataclasses.replace(
         config,
         max_iter=iterations,
@@ -235,6 +315,8 @@ def track_routes(
         derived, run_cfg, time_prior=time_prior, platform_prior=platform_prior, initial_paths=track.initial
     ) as run:
         result = run.run()
+        ctx = run.last_context
+    assert ctx is not None
     platform_prior_out = np.zeros((scenario.n_locales, M))
     platform_prior_out[np.arange(scenario.n_locales), track.platform] = 1.0
     extras: dict[str, Any] = {"visit_points": points, "routes": [np.asarray(r) for r in routes]}
@@ -242,7 +324,7 @@ def track_routes(
         result,
         scenario=scenario,
         assignment=track.platform,
-        visit_time=track.visit_time,
+        visit_time=discs.visit_steps(ctx),
         platform_prior=platform_prior_out,
         estep=None,
         extras=extras,
