@@ -179,3 +179,18 @@ def test_bad_input_names_the_field(kwargs: dict, field: str) -> None:
 def test_not_a_scenario() -> None:
     with pytest.raises(po.ConfigError, match="scenario"):
         po.plan_coverage("A")  # type: ignore[arg-type]
+
+
+def test_a_plan_that_fails_the_check_is_never_returned(monkeypatch: pytest.MonkeyPatch) -> None:
+    import pmht_opt.coverage.planner as planner
+
+    monkeypatch.setattr(planner, "missed_locales", lambda scenario, positions, radius: np.array([3]))
+    with pytest.raises(po.SolverError, match=r"locales \[3\]"):
+        po.plan_coverage(small_scenario("B"), 0.3, po.PMHTConfig(threads=1), orderer="ga", starts=1, rounds=0)
+
+
+def test_a_tiny_time_budget_still_gives_a_covering_plan() -> None:
+    sc = small_scenario("C", seed=8)
+    res = po.plan_coverage(sc, 0.3, po.PMHTConfig(threads=1), orderer="ga", starts=2, time_budget=1e-9)
+    assert_covers(res, 0.3)
+    assert len(res.extras["candidates"]) == 1

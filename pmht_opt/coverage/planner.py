@@ -13,7 +13,7 @@ import numpy as np
 from pmht_opt.constraints.params import positive_number
 from pmht_opt.coverage.search import Candidate, resolve_orderer, search, variants
 from pmht_opt.coverage.tracking import track_routes
-from pmht_opt.exceptions import ConfigError, InfeasibleError, SolverError
+from pmht_opt.exceptions import ConfigError, SolverError
 from pmht_opt.geometry import point_polyline_distance
 from pmht_opt.planner import PMHTConfig
 from pmht_opt.result import COVERAGE_RTOL, PlanResult
@@ -153,8 +153,9 @@ def plan_coverage(
        step its visit point is reached, and with the user's constraints from ``config``
        (:mod:`~pmht_opt.coverage.tracking`). The shortest plan is returned.
 
-    The returned plan is checked on its positions before it is returned: every locale within
-    ``radius`` of a path (measured on the segments) and every hard constraint holding.
+    Every flown plan is checked on its positions: every locale within ``radius`` of a path (measured
+    on the segments between positions, independently of the visit steps the plan was built with) and
+    every hard constraint holding; a plan that fails the check is never returned.
 
     Parameters
     ----------
@@ -205,9 +206,9 @@ def plan_coverage(
     ConfigError
         A bad argument, naming it.
     InfeasibleError
-        The discs cannot be met together with the user's constraints by any candidate.
+        The discs cannot be met together with the user's constraints by any candidate flown.
     SolverError
-        The plan misses a locale or breaks a hard constraint (never returned).
+        No candidate flown gave a plan that passes the check (or a backend failed on every one).
     """
     s = _settings(
         scenario,
@@ -244,7 +245,8 @@ def plan_coverage(
             break
         try:
             plan = track_routes(scenario, cand.routes, cand.points, s.radius, s.config, s.iterations)
-        except InfeasibleError as err:
+            _check(plan, s.radius)
+        except SolverError as err:  # infeasible with the user's constraints, or not standing the check
             error = err
             continue
         length = plan.total_distance
@@ -255,7 +257,6 @@ def plan_coverage(
     if result is None:
         assert error is not None
         raise error
-    _check(result, s.radius)
     result.extras.update(
         {
             "orderer": s.orderer,
