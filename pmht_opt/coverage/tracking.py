@@ -113,6 +113,8 @@ class VisitDiscs(Constraint):
         return report
 
 
+#: Synthetic measurements at most: beyond, one every few steps (their priors are a dense array).
+MAX_MEASUREMENTS = 5000
 #: A locale's disc may be met up to ``T // WINDOW_FRACTION`` steps from where its visit point is.
 WINDOW_FRACTION = 25
 #: The speed ramps up from rest over ``T // RAMP_FRACTION`` steps (and down before a terminal point).
@@ -220,6 +222,8 @@ def make_track(
     visit_time = np.ones(N, dtype=int)
     platform = np.zeros(N, dtype=int)
     steps = np.arange(1, T + 1)
+    # The run's priors are dense (measurements x T): thin the measurements on very large problems.
+    stride = -(-scenario.n_platforms * T // MAX_MEASUREMENTS)
     pts, times, owner = [], [], []
     for m, route in enumerate(routes):
         end = None if ends is None or np.any(np.isnan(ends[m])) else ends[m]
@@ -235,9 +239,9 @@ def make_track(
             platform[route] = m
         arc = profile.arc(steps)
         xy = np.column_stack([np.interp(arc, s, poly[:, 0]), np.interp(arc, s, poly[:, 1])])
-        pts.append(xy)
-        times.append(steps)
-        owner.append(np.full(T, m))
+        pts.append(xy[stride - 1 :: stride])
+        times.append(steps[stride - 1 :: stride])
+        owner.append(np.full(times[-1].size, m))
         body = initial[m, 1:]
         body[:] = 0.0
         body[:, POS] = xy
