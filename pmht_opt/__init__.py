@@ -16,6 +16,7 @@ from pmht_opt.constraints import (
     Terminal,
     VisitAll,
 )
+from pmht_opt.coverage import plan_coverage as plan_coverage
 from pmht_opt.em import EMCallbacks, EMRun, IterationRecord
 from pmht_opt.estep import EStepSummary
 from pmht_opt.exceptions import (

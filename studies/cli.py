@@ -39,6 +39,7 @@ STUDIES: dict[str, tuple[str, str]] = {
         "studies.constraints_stress",
         "constraints from generous to infeasible on every backend: solved, named, verified",
     ),
+    "coverage": ("studies.coverage", "distance at equal coverage over sensor radii, Pareto fronts"),
 }
 
 
