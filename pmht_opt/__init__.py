@@ -13,10 +13,11 @@ from pmht_opt.constraints import (
     CvxpyConstraint,
     PolygonObstacle,
     SpeedLimit,
+    StayNear,
     Terminal,
     VisitAll,
 )
-from pmht_opt.coverage import plan_coverage as plan_coverage
+from pmht_opt.coverage import plan_coverage
 from pmht_opt.em import EMCallbacks, EMRun, IterationRecord
 from pmht_opt.estep import EStepSummary
 from pmht_opt.exceptions import (
@@ -83,6 +84,7 @@ __all__ = [
     "Schedule",
     "SolverError",
     "SpeedLimit",
+    "StayNear",
     "StoppingCriterion",
     "Terminal",
     "TimeBudget",
@@ -93,6 +95,7 @@ __all__ = [
     "available_backends",
     "order_locales",
     "paper_scenario",
+    "plan_coverage",
     "plan_pmht",
     "plan_smoothed",
     "solve_ga_tsp",

@@ -156,6 +156,9 @@ class PMHTConfig:
                 raise ConfigError(
                     f"constraints: expected pmht_opt.constraints objects, got {type(con).__name__}."
                 )
+        given = {con.name for con in self.constraints}
+        implied = [i for con in self.constraints for i in con.implied() if i.name not in given]
+        self.constraints = (*self.constraints, *{i.name: i for i in implied}.values())
         check_constraints(self.solver, self.constraints)
         self.snapshots = tuple(int(s) for s in self.snapshots)
         if any(s < 0 for s in self.snapshots):

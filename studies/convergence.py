@@ -73,7 +73,14 @@ def trial(kind: str, seed: int, config: str) -> dict[str, Any]:
     callbacks = EMCallbacks(after_iteration=after)
     if config == "smoothed-0.3":
         tour = order_locales(sc, "pyvrp", seed=seed)
-        plan_smoothed(sc, tour, PMHTConfig(max_iter=100, threads=1), visit_radius=0.3, callbacks=callbacks)
+        plan_smoothed(
+            sc,
+            tour,
+            PMHTConfig(max_iter=100, threads=1),
+            visit_radius=0.3,
+            callbacks=callbacks,
+            converge=None,
+        )
     else:
         with EMRun(sc, cfg, callbacks=callbacks) as run:
             run.run()

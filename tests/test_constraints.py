@@ -57,7 +57,16 @@ def speeds() -> dict[str, float]:
     return {kind: _unconstrained_speed(kind) for kind in "ABC"}
 
 
-CASES = [(k, s) for k in "ABC" for s in ("clarabel", "osqp", "cvxpy")]
+#: Every scenario with clarabel, each other backend on some: OSQP's constrained M-steps run thousands of
+#: ADMM iterations (seconds each), and the backends' agreement is tested on single M-steps below.
+CASES = [
+    ("A", "clarabel"),
+    ("B", "clarabel"),
+    ("C", "clarabel"),
+    ("B", "osqp"),
+    ("A", "cvxpy"),
+    ("C", "cvxpy"),
+]
 
 
 @pytest.mark.parametrize(("kind", "solver"), CASES)
@@ -106,7 +115,9 @@ def test_visit_all_guarantees_coverage(kind: str, solver: str) -> None:
     )
     res = plan_pmht(sc, cfg)
     assert res.history.r[anneal] == sc.r
-    (rep,) = res.constraint_reports()
+    # VisitAll brings StayNear(0.5) with it: the paths stay near the area.
+    rep, near = res.constraint_reports()
+    assert near.name == "StayNear(0.5)" and near.max_violation <= VIOLATION_TOL[solver] * 10
     assert rep.max_violation <= VIOLATION_TOL[solver]
     assert rep.details["visits_met"] == sc.n_locales
     # Every locale lies within the radius of some path.

@@ -11,6 +11,7 @@ kind                   what                                   needs (without con
 =====================  =====================================  ===================================
 SpeedLimit, AccelLimit norm of velocity / acceleration        soc (inner polygon, ``sides``)
 AreaBounds             box on positions                       linear
+StayNear               near the area (implied by VisitAll)    linear
 CircleObstacle         keep-out disc, linearised per step     linear (half-planes)
 PolygonObstacle        keep-out convex polygon, linearised    linear (half-planes)
 VisitAll               every locale within a radius           soc (inner polygon)
@@ -19,7 +20,7 @@ CvxpyConstraint        anything in cvxpy                      cvxpy (the cvxpy b
 =====================  =====================================  ===================================
 """
 
-from pmht_opt.constraints.area import AreaBounds
+from pmht_opt.constraints.area import AreaBounds, StayNear
 from pmht_opt.constraints.base import (
     CAPABILITIES,
     Constraint,
@@ -46,6 +47,7 @@ __all__ = [
     "CvxpyVariables",
     "PolygonObstacle",
     "SpeedLimit",
+    "StayNear",
     "Terminal",
     "VisitAll",
     "choose_visits",

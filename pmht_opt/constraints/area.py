@@ -8,7 +8,7 @@ import numpy as np
 
 from pmht_opt.constraints.base import Constraint, ConstraintContext
 from pmht_opt.constraints.blocks import Block, state_rows
-from pmht_opt.constraints.params import is_real
+from pmht_opt.constraints.params import is_real, positive_number
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.model import PX, PY
 
@@ -76,3 +76,38 @@ def box_block(platform: int, horizon: int, box: np.ndarray) -> Block:
     G = state_rows(T, times, np.array([PX, PY]), coeff)
     h = np.tile(np.array([xmax, -xmin, ymax, -ymin]), T)
     return Block(platform, "nonneg", G, h, times=times)
+
+
+class StayNear(Constraint):
+    """Every platform stays within ``margin`` of the scenario's area, beyond what its own start needs.
+
+    The area is the scenario's ``bounds``, grown to include the platform's start; the rows bound ``x``
+    and ``y`` at ``margin / sqrt(2)`` beyond it, so that even beyond a corner no position is further
+    from the area than ``margin`` plus the start's own distance from it. :class:`VisitAll` implies it
+    (``keep_within``, default 0.5): visits imposed at fixed times on a smooth path can otherwise be met
+    by a loop far outside the area (Table 1 scenarios: up to 4 units out).
+    """
+
+    def __init__(self, margin: float = 0.5, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.margin = positive_number("StayNear.margin", margin)
+
+    @property
+    def name(self) -> str:
+        return f"StayNear({self.margin:g})"
+
+    def scale(self, scenario: Scenario) -> float:
+        """The area's smaller side."""
+        xmin, xmax, ymin, ymax = scenario.bounds or (0.0, 1.0, 0.0, 1.0)
+        return float(max(min(xmax - xmin, ymax - ymin), 1e-12))
+
+    def box(self, scenario: Scenario, platform: int) -> np.ndarray:
+        """``(xmin, xmax, ymin, ymax)`` that ``platform``'s positions must stay in."""
+        xmin, xmax, ymin, ymax = scenario.bounds or (0.0, 1.0, 0.0, 1.0)
+        x, y = scenario.start_positions[platform]
+        grow = self.margin / np.sqrt(2.0)
+        return np.array([min(xmin, x) - grow, max(xmax, x) + grow, min(ymin, y) - grow, max(ymax, y) + grow])
+
+    def blocks(self, ctx: ConstraintContext) -> list[Block]:
+        sc = ctx.scenario
+        return [box_block(m, sc.horizon, self.box(sc, m)) for m in self.applies_to(sc)]

@@ -143,6 +143,10 @@ class Constraint(abc.ABC):
         """Short description used in reports and error messages."""
         return type(self).__name__
 
+    def implied(self) -> list[Constraint]:
+        """Constraints that come with this one (the planner adds them unless already given)."""
+        return []
+
     def applies_to(self, scenario: Scenario) -> list[int]:
         """Platforms of ``scenario`` this constraint binds."""
         if self.platforms is None:

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pmht_opt.constraints.area import box_block
+from pmht_opt.constraints.area import StayNear
 from pmht_opt.constraints.base import Constraint, ConstraintContext, ConstraintReport
 from pmht_opt.constraints.blocks import DEFAULT_SIDES, Block, disc_block
 from pmht_opt.constraints.params import check_sides, positive_number
@@ -108,12 +108,10 @@ class VisitAll(Constraint):
     ramp
         Iterations over which the visit discs shrink to ``radius`` (above); 0 imposes them whole.
     keep_within
-        The paths stay within this distance of the scenario's area (its ``bounds``, grown to include
-        the platform's start): a hard bound on every position, ``keep_within / sqrt(2)`` beyond the
-        box on each side, so that even beyond a corner no position is further than ``keep_within``
-        from the area than its start is. Visits imposed at fixed times on a smooth path can otherwise
-        be met by a loop far outside the area, which no user wants flown (Table 1 scenarios: up to 4
-        units out). ``None`` lets the paths roam.
+        The planner adds ``StayNear(keep_within)`` (:class:`~pmht_opt.constraints.StayNear`): the
+        paths stay within this distance of the scenario's area, beyond what their starts need. Visits
+        imposed at fixed times on a smooth path can otherwise be met by a loop far outside the area,
+        which no user wants flown (Table 1 scenarios: up to 4 units out). ``None`` lets them roam.
     sides
         Sides of the inner polygon on a backend without cones.
     soft, weight, platforms
@@ -164,7 +162,11 @@ class VisitAll(Constraint):
         return choose_visits(ctx, self.radius_for(ctx.scenario))
 
     def blocks(self, ctx: ConstraintContext) -> list[Block]:
-        return self.visit_blocks(ctx) + self.containment(ctx.scenario)
+        return self.visit_blocks(ctx)
+
+    def implied(self) -> list[Constraint]:
+        """:class:`~pmht_opt.constraints.area.StayNear` of ``keep_within`` (parameters)."""
+        return [] if self.keep_within is None else [StayNear(self.keep_within)]
 
     def visit_blocks(self, ctx: ConstraintContext) -> list[Block]:
         """The visit discs of this iteration, one block per platform."""
@@ -188,20 +190,6 @@ class VisitAll(Constraint):
                         labels=[f"locale {n}" for n in mine.tolist()],
                     )
                 )
-        return out
-
-    def containment(self, scenario: Scenario) -> list[Block]:
-        """The rows of ``keep_within`` (parameters), one box per platform."""
-        if self.keep_within is None or scenario.bounds is None:
-            return []
-        grow = self.keep_within / np.sqrt(2.0)
-        out = []
-        for m, (x, y) in enumerate(scenario.start_positions):
-            xmin, xmax, ymin, ymax = scenario.bounds
-            box = np.array(
-                [min(xmin, x) - grow, max(xmax, x) + grow, min(ymin, y) - grow, max(ymax, y) + grow]
-            )
-            out.append(box_block(m, scenario.horizon, box))
         return out
 
     def violation(self, states: np.ndarray, ctx: ConstraintContext) -> ConstraintReport:

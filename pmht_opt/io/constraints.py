@@ -35,6 +35,7 @@ from pmht_opt.constraints import (
     Constraint,
     PolygonObstacle,
     SpeedLimit,
+    StayNear,
     Terminal,
     VisitAll,
 )
@@ -138,6 +139,7 @@ KINDS: dict[str, Kind] = {
         {"xmin": _number, "xmax": _number, "ymin": _number, "ymax": _number},
         lambda c, f: dict(zip(("xmin", "xmax", "ymin", "ymax"), map(float, c.box), strict=True)),
     ),
+    "stay_near": Kind(StayNear, {"margin": _number}, lambda c, f: {"margin": c.margin}),
     "circle_obstacle": Kind(
         CircleObstacle,
         {"center": _point, "radius": _number, "margin": _number},
