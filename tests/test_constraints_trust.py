@@ -13,7 +13,8 @@ import pmht_opt as po
 from pmht_opt.constraints.base import ConstraintContext
 from pmht_opt.result import excursion
 from pmht_opt.verify import verify_plan
-from studies.constraints_stress import l_shaped, measure
+from studies.constraint_measures import measure
+from studies.constraints_stress import l_shaped
 
 BACKENDS = ["clarabel", "osqp", "cvxpy"]
 

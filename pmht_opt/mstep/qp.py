@@ -117,14 +117,14 @@ class QPMStep(MStep):
             self.constrained_retries,
         )
 
-    def _solve(self, data: MStepData) -> MStepOutput:
-        rows = self.rows.rows(data.ctx, data.active, data.strengths)
-        exact = self.reference().smooth(data)
-        exact_states = self._with_start(axis_states(exact.means[:, 1:]))
-        # Where the exact unconstrained optimum already meets a platform's rows it is that platform's
-        # constrained optimum too: no solve. Without rows it is the answer outright when the exact
-        # smoother stands in for unconstrained platforms (solver "auto"); a platform with no weight and
-        # no row coasts, the unique answer, which first-order solvers struggle to return.
+    def _screen(self, data: MStepData, rows: dict[int, PlatformRows], exact_states: np.ndarray) -> list[int]:
+        """The platforms that need a solve.
+
+        Where the exact unconstrained optimum already meets a platform's rows it is that platform's
+        constrained optimum too: no solve. Without rows it is the answer outright when the exact
+        smoother stands in for unconstrained platforms (solver "auto"); a platform with no weight and
+        no row coasts, the unique answer, which first-order solvers struggle to return.
+        """
         idle = ~np.any(data.W > 0, axis=0)
         exact_ok = np.zeros(self.M, dtype=bool)
         for m in range(self.M):
@@ -136,22 +136,34 @@ class QPMStep(MStep):
                 )
             else:
                 exact_ok[m] = self.exact_unconstrained or bool(idle[m])
-        active = [int(m) for m in np.flatnonzero(~exact_ok)]
+        return [int(m) for m in np.flatnonzero(~exact_ok)]
 
-        def probe(m: int) -> Callable[[solvers.QPSolution], None] | None:
-            platform_rows = rows.get(m)
-            if platform_rows is None or not any(not i.soft for i in platform_rows.items):
-                return None
+    def _probe(
+        self, m: int, data: MStepData, rows: PlatformRows | None
+    ) -> Callable[[solvers.QPSolution], None] | None:
+        """What platform ``m``'s QP asks after a failed solve, before any retry: an
+        :class:`InfeasibleError` if its hard rows cannot all be met (``None`` without hard rows)."""
+        if rows is None or not any(not i.soft for i in rows.items):
+            return None
 
-            def check(sol: solvers.QPSolution) -> None:
-                err = self._diagnose(m, data, platform_rows, sol)
-                if isinstance(err, InfeasibleError):
-                    raise err
+        def check(sol: solvers.QPSolution) -> None:
+            err = self._diagnose(m, data, rows, sol)
+            if isinstance(err, InfeasibleError):
+                raise err
 
-            return check
+        return check
+
+    def _solve(self, data: MStepData) -> MStepOutput:
+        rows = self.rows.rows(data.ctx, data.active, data.strengths)
+        exact = self.reference().smooth(data)
+        exact_states = self._with_start(axis_states(exact.means[:, 1:]))
+        active = self._screen(data, rows, exact_states)
 
         def one(m: int) -> tuple[solvers.QPSolution, np.ndarray | None, np.ndarray | None]:
-            return self.blocks[m].solve(data.W[:, m], data.WZ[:, m], data.r, rows.get(m), probe=probe(m))
+            platform_rows = rows.get(m)
+            return self.blocks[m].solve(
+                data.W[:, m], data.WZ[:, m], data.r, platform_rows, probe=self._probe(m, data, platform_rows)
+            )
 
         if self.threads > 1 and len(active) > 1:
             if self._pool is None:
