@@ -54,6 +54,7 @@ from pmht_opt.io.points import read_points
 from pmht_opt.io.settings import PlannerSettings, read_settings
 from pmht_opt.io.toml_ import dumps
 from pmht_opt.scenario import Scenario
+from pmht_opt.validation import output_file
 
 #: Scenario fields in files, and how each is read.
 SCENARIO_FIELDS = ("name", "horizon", "dt", "q", "r", "bounds", "coverage_radius", "locales", "starts")
@@ -259,9 +260,14 @@ def save_mission(mission: Mission, path: str | Path) -> Path:
     suffix = path.suffix.lower()
     data = mission.to_dict()
     if suffix == ".json":
-        path.write_text(json.dumps({k: v for k, v in data.items() if v is not None}, indent=1) + "\n")
+        text = json.dumps({k: v for k, v in data.items() if v is not None}, indent=1, ensure_ascii=False)
+        text += "\n"
     elif suffix == ".toml":
-        path.write_text(dumps(data, header="pmht-opt mission"))
+        text = dumps(data, header="pmht-opt mission")
     else:
         raise ScenarioError(f"{path.name}: mission files end in .toml or .json.")
+    try:
+        output_file(path).write_text(text, encoding="utf-8")
+    except OSError as err:
+        raise ScenarioError(f"path: cannot write {str(path)!r}: {err.strerror or err}.") from err
     return path
