@@ -12,6 +12,7 @@ extra constraints once the penalty ``r`` stays fixed. :func:`plan_pmht` runs the
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -133,6 +134,9 @@ class PMHTConfig:
         bad = [k for k in self.solver_settings if not isinstance(k, str)]
         if bad:
             raise ConfigError(f"solver_settings: expected setting names (strings), got {bad[0]!r}.")
+        for key, value in self.solver_settings.items():
+            if isinstance(value, float) and math.isnan(value):
+                raise ConfigError(f"solver_settings: {key} is NaN, which no backend can use.")
         if self.threads is not None:
             if (
                 isinstance(self.threads, bool)

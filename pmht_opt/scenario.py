@@ -38,19 +38,6 @@ def _array(name: str, value: Any, widths: tuple[int, ...]) -> np.ndarray:
     return validation.bounded(name, arr, validation.COORDINATE_MAX, ScenarioError)
 
 
-def _bounds(value: Any) -> Bounds:
-    """``(xmin, xmax, ymin, ymax)``: four real numbers (a string or a scalar is not a box)."""
-    if isinstance(value, (str, bytes)) or not isinstance(value, (tuple, list, np.ndarray)):
-        raise ScenarioError(f"bounds: expected (xmin, xmax, ymin, ymax), got {validation.describe(value)}.")
-    if len(value) != 4:
-        raise ScenarioError(f"bounds must be (xmin, xmax, ymin, ymax), got {len(value)} values.")
-    lim = validation.COORDINATE_MAX
-    b = tuple(validation.real(f"bounds[{i}]", v, ScenarioError, -lim, lim) for i, v in enumerate(value))
-    if b[0] > b[1] or b[2] > b[3]:
-        raise ScenarioError(f"bounds must have xmin <= xmax and ymin <= ymax, got {b}.")
-    return (b[0], b[1], b[2], b[3])
-
-
 @dataclass
 class Scenario:
     """A planning problem.
@@ -127,7 +114,7 @@ class Scenario:
                 "bounds: none given; assumed the locales' bounding box [%.6g, %.6g, %.6g, %.6g]", *self.bounds
             )
         else:
-            self.bounds = _bounds(self.bounds)
+            self.bounds = validation.box("bounds", self.bounds, ScenarioError)
         self.name = validation.text("name", self.name, ScenarioError)
 
     @property

@@ -30,7 +30,8 @@ from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 
-from pmht_opt.exceptions import PmhtOptError, SolverError
+import solvers
+from pmht_opt.exceptions import ConfigError, PmhtOptError, SolverError
 
 #: Time step ``dt`` (s) the numerics handle: the process-noise covariance holds ``dt^5``, whose Cholesky
 #: factor underflows or overflows the exact smoother outside this range.
@@ -181,6 +182,20 @@ def bounded(field: str, arr: np.ndarray, limit: float, error: type[PmhtOptError]
     return arr
 
 
+def box(field: str, value: Any, error: type[PmhtOptError]) -> tuple[float, float, float, float]:
+    """``(xmin, xmax, ymin, ymax)``: four coordinates with ``xmin <= xmax`` and ``ymin <= ymax`` (a
+    string or a scalar is not a box)."""
+    if isinstance(value, (str, bytes)) or not isinstance(value, (tuple, list, np.ndarray)):
+        raise error(f"{field}: expected (xmin, xmax, ymin, ymax), got {describe(value)}.")
+    if len(value) != 4:
+        raise error(f"{field} must be (xmin, xmax, ymin, ymax), got {len(value)} values.")
+    lim = COORDINATE_MAX
+    b = tuple(real(f"{field}[{i}]", v, error, -lim, lim) for i, v in enumerate(value))
+    if b[0] > b[1] or b[2] > b[3]:
+        raise error(f"{field} must have xmin <= xmax and ymin <= ymax, got {b}.")
+    return (b[0], b[1], b[2], b[3])
+
+
 def text(field: str, value: Any, error: type[PmhtOptError]) -> str:
     """A string that files can hold: UTF-8 encodable (no lone surrogates)."""
     if not isinstance(value, str):
@@ -253,10 +268,15 @@ def call_user(fn: Callable[..., R], *args: Any) -> R:
 
 def foreign(err: BaseException, what: str, backend: str = "") -> BaseException:
     """The exception to raise for ``err`` at a boundary: ``err`` itself when it is the project's own,
-    the caller's, or not an ``Exception`` (``KeyboardInterrupt``, ``SystemExit``); else a
-    :class:`SolverError` saying what failed, with ``err`` as its cause."""
+    the caller's, or not an ``Exception`` (``KeyboardInterrupt``, ``SystemExit``); a backend's
+    refusal of its settings as :class:`~pmht_opt.exceptions.ConfigError` naming ``solver_settings``;
+    else a :class:`SolverError` saying what failed. The new exception has ``err`` as its cause."""
     if not isinstance(err, Exception) or isinstance(err, PmhtOptError) or getattr(err, _USER_CODE, False):
         return err
+    if isinstance(err, solvers.SettingsError):  # a backend that checks its options only when it solves
+        out: PmhtOptError = ConfigError(f"solver_settings: {err}")
+        out.__cause__ = err
+        return out
     if isinstance(err, MemoryError):
         reason = "out of memory"
     else:

@@ -92,7 +92,7 @@ class OSQPSession(QPSession):
         prob = self.problem
         try:
             self._solver.setup(prob.P, prob.q, prob.A, lower, upper, **opts)
-        except ValueError as err:
+        except (TypeError, ValueError) as err:
             raise SettingsError(f"OSQP rejected its settings: {err}") from err
         except osqp.OSQPException as err:
             raise _setup_error(err) from err
