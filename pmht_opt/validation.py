@@ -144,7 +144,8 @@ def real_array(field: str, value: Any, error: type[PmhtOptError]) -> np.ndarray:
     if isinstance(value, (dict, set, frozenset)):
         raise error(f"{field}: expected numbers, got {describe(value)}.")
     try:
-        arr = np.asarray(value)
+        # Sequences element by element: numpy would quietly turn [True, 0.5] into [1.0, 0.5].
+        arr = value if isinstance(value, np.ndarray) else np.asarray(value, dtype=object)
     except (TypeError, ValueError):
         raise error(f"{field}: expected a rectangular array of numbers (rows of equal length).") from None
     except RecursionError:
@@ -153,8 +154,15 @@ def real_array(field: str, value: Any, error: type[PmhtOptError]) -> np.ndarray:
         flat = list(arr.ravel())
         bad = [v for v in flat if not is_real(v)]
         if bad:
-            ragged = isinstance(bad[0], (list, tuple, np.ndarray))
-            what = "rows of unequal length" if ragged else describe(bad[0])
+            first = bad[0]
+            if isinstance(first, (list, tuple, np.ndarray)):
+                what = "rows of unequal length or depth"
+            elif isinstance(first, (str, bytes)):
+                what = "strings"
+            elif isinstance(first, (bool, np.bool_)):
+                what = "booleans"
+            else:
+                what = describe(first)
             raise error(f"{field}: expected numbers, got {what}.")
         try:
             arr = np.array([float(v) for v in flat], dtype=float).reshape(arr.shape)
