@@ -455,3 +455,29 @@ def test_cli_round_trips_a_scenario_through_json_and_toml(
     capsys.readouterr()
     text = json.loads((tmp_path / "deep" / "s.json").read_text(encoding="utf-8"))
     assert text["name"] == "C (seed 3)"
+
+
+def test_cli_schedule_options_replace_a_files_unsuitable_schedule(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A file in metres (r = 25) with the library's default schedule is refused, naming what to write,
+    unless the command line replaces the schedule."""
+    mission = tmp_path / "m.toml"
+    mission.write_text("locales = [[0.0, 0.0], [100.0, 50.0]]\nstarts = [[0.0, 0.0]]\nhorizon = 20\nr = 25.0")
+    assert cli.main(["plan", str(mission), "--quiet", "--iterations", "2"]) == cli.EXIT_ERROR
+    assert "planner.anneal: the default schedule starts at r = 1, not above" in capsys.readouterr().err
+    assert cli.main(["plan", str(mission), "--quiet", "--iterations", "2", "--no-anneal"]) == 0
+    assert cli.main(["plan", str(mission), "--quiet", "--iterations", "2", "--anneal", "2500", "2"]) == 0
+    assert cli.main(["plan", str(mission), "--quiet", "--anneal", "1", "2"]) == cli.EXIT_ERROR
+    assert "--anneal: anneal: the schedule starts at r = 1, not above" in capsys.readouterr().err
+
+
+def test_mission_and_point_files_that_are_not_utf8_are_refused(tmp_path: Path) -> None:
+    mission = tmp_path / "m.toml"
+    mission.write_bytes(b'name = "\xff"\nlocales = [[1.0, 1.0]]\nstarts = [[0.0, 0.0]]\n')
+    with pytest.raises(ScenarioError, match=r"m\.toml: not UTF-8"):
+        load_mission(mission)
+    (tmp_path / "sites.csv").write_bytes(b"x,y\n1,\xff\n")
+    mission.write_text('locales = "sites.csv"\nstarts = [[0.0, 0.0]]\n')
+    with pytest.raises(ScenarioError, match=r"sites\.csv: not UTF-8"):
+        load_mission(mission)

@@ -56,7 +56,7 @@ def value(v: Any) -> str:
             return "nan"
         if math.isinf(v):
             return "inf" if v > 0 else "-inf"
-        return repr(v)
+        return repr(float(v))  # numpy's floats are floats, but their repr is not TOML
     if isinstance(v, dict):
         return "{ " + ", ".join(f"{_key(k)} = {value(x)}" for k, x in v.items() if x is not None) + " }"
     if isinstance(v, (list, tuple)):
