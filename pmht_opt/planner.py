@@ -35,6 +35,9 @@ ProgressCallback = Callable[[int, float], None]
 class PMHTConfig:
     """Settings of :func:`plan_pmht`.
 
+    Every field is checked on construction (:mod:`pmht_opt.validation`): a string or a boolean where a
+    number belongs, a non-finite or out-of-range value raises :class:`ConfigError` naming the field.
+
     Parameters
     ----------
     solver
@@ -42,7 +45,7 @@ class PMHTConfig:
         ``"clarabel"`` with them), ``"banded"``, ``"clarabel"``, ``"osqp"``, ``"cvxpy"`` or
         ``"kalman"`` (:func:`~pmht_opt.available_backends`).
     max_iter
-        Maximum number of EM iterations (the paper: 100).
+        Maximum number of EM iterations (the paper: 100), an integer from 1 to 1e6.
     tol
         Stop when the relative change of the EM objective between iterations falls below ``tol``;
         ``0`` runs exactly ``max_iter`` iterations.
