@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pmht_opt import validation
 from pmht_opt.exceptions import ConfigError
 
 #: The schedule shapes :class:`Anneal` knows.
@@ -34,7 +35,7 @@ class Anneal:
     ----------
     start
         ``r`` of the first iteration (absolute, in squared distance units; the scenario's ``r`` is 0.01
-        in the paper's scenarios).
+        in the paper's scenarios); above the scenario's ``r``, within ``[1e-10, 1e12]``.
     iterations
         Length ``n`` of the schedule: iterations ``1..n`` anneal, iteration ``n`` already uses the
         scenario's ``r``. ``0`` is no annealing (plain EM).
@@ -56,12 +57,10 @@ class Anneal:
         if self.iterations is None:
             if self.fn is None:
                 raise ConfigError("anneal.iterations: None is only allowed with a callable schedule.")
-        elif isinstance(self.iterations, bool) or not isinstance(self.iterations, (int, np.integer)):
-            raise ConfigError(f"anneal.iterations: expected a non-negative integer, got {self.iterations!r}.")
-        elif self.iterations < 0:
-            raise ConfigError(f"anneal.iterations: expected a non-negative integer, got {self.iterations}.")
         else:
-            object.__setattr__(self, "iterations", int(self.iterations))
+            limit = validation.MAX_ITERATIONS
+            iterations = validation.integer("anneal.iterations", self.iterations, ConfigError, 0, limit)
+            object.__setattr__(self, "iterations", iterations)
         _check_r("anneal.start", self.start)
         object.__setattr__(self, "start", float(self.start))
         if self.shape not in SHAPES:
@@ -98,6 +97,13 @@ class Anneal:
         n = max_iter if self.iterations is None else min(self.iterations, max_iter)
         if n == 0:
             return out
+        if self.fn is None and self.start <= r:
+            raise ConfigError(
+                f"anneal.start: the schedule starts at r = {self.start:g}, not above the scenario's "
+                f"r = {r:g}; annealing starts wide and shrinks to r (docs/model.md section 6): give a "
+                f"start above r (e.g. {100 * r:g}, 100 r as the default is for the paper's r = 0.01) "
+                "or anneal=None."
+            )
         if self.fn is not None:
             for i in range(1, n + 1):
                 try:
@@ -135,13 +141,8 @@ class Anneal:
 
 
 def _check_r(name: str, value: object) -> float:
-    try:
-        r = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise ConfigError(f"{name}: expected a finite positive number, got {value!r}.") from None
-    if not math.isfinite(r) or r <= 0:
-        raise ConfigError(f"{name}: expected a finite positive number, got {value!r}.")
-    return r
+    """A penalty variance in the range the numerics handle (:data:`pmht_opt.validation.R_RANGE`)."""
+    return validation.real(name, value, ConfigError, *validation.R_RANGE)
 
 
 def as_anneal(value: object) -> Anneal:

@@ -254,12 +254,14 @@ def _settings(args: argparse.Namespace, base: PlannerSettings) -> PlannerSetting
 
 
 def _mission(args: argparse.Namespace) -> Mission:
+    # A schedule given here replaces the file's: the file's is then not checked against its r.
+    replaced = getattr(args, "no_anneal", False) or getattr(args, "anneal", None) is not None
     if getattr(args, "example", None) is not None:
-        mission = load_mission(example_path(args.example))
+        mission = load_mission(example_path(args.example), check_schedule=not replaced)
     elif args.mission is None:
         raise ConfigError("give a mission file, or --example NAME (pmht-opt example lists them).")
     else:
-        mission = load_mission(args.mission)
+        mission = load_mission(args.mission, check_schedule=not replaced)
     settings = _settings(args, mission.planner)
     if settings is not mission.planner:
         try:

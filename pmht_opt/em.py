@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 import solvers
+from pmht_opt import validation
 from pmht_opt.constraints.base import ConstraintContext
 from pmht_opt.constraints.feasibility import check_feasible
 from pmht_opt.estep import EStepResult, estep, gate_margin, safe_log
@@ -91,7 +92,7 @@ def with_progress(
 def _initial_log_prior(name: str, prior: Any, shape: tuple[int, int]) -> np.ndarray | None:
     if prior is None:
         return None
-    arr = np.asarray(prior, dtype=float)
+    arr = validation.real_array(name, prior, ScenarioError)
     if arr.shape != shape:
         raise ScenarioError(f"{name} must have shape {shape}, got {arr.shape}.")
     if not np.all(np.isfinite(arr)) or np.any(arr < 0):
@@ -108,7 +109,7 @@ def _initial_paths(scenario: Scenario, paths: Any) -> np.ndarray:
     if paths is None:
         # Every platform standing still at its start.
         return np.repeat(x0[:, None, :], T + 1, axis=1)
-    arr = np.asarray(paths, dtype=float)
+    arr = validation.real_array("initial_paths", paths, ScenarioError)
     if arr.shape != (M, T + 1, STATE_DIM):
         raise ScenarioError(f"initial_paths must have shape {(M, T + 1, STATE_DIM)}, got {arr.shape}.")
     if not np.all(np.isfinite(arr)):
@@ -149,6 +150,7 @@ class EMRun:
         ``None`` while the run goes on; then the name of the criterion that stopped it.
     """
 
+    @validation.plan_boundary("setting up the plan")
     def __init__(
         self,
         scenario: Scenario,
@@ -224,13 +226,14 @@ class EMRun:
 
     def _notify(self, fn: Callable[[EMRun, Any], None] | None, value: Any) -> None:
         if fn is not None:
-            fn(self, value)
+            validation.call_user(fn, self, value)
 
     @property
     def done(self) -> bool:
         """Whether the stopping criterion has stopped the run."""
         return self.stop_reason is not None
 
+    @validation.plan_boundary("an EM iteration")
     def step(self) -> IterationRecord:
         """Run one EM iteration: prior updates, M-step, E-step and objective; then the stop test."""
         if self.done:
@@ -299,7 +302,7 @@ class EMRun:
             scale=max(bounds[1] - bounds[0], bounds[3] - bounds[2], 1e-12),
         )
         for crit in self.criteria:
-            if crit(progress):
+            if validation.call_user(crit, progress):
                 self.stop_reason = type(crit).__name__
                 return
 
@@ -332,9 +335,14 @@ class EMRun:
             stop_reason=self.stop_reason or "",
         )
 
+    @validation.plan_boundary("the plan's result")
     def result(self) -> PlanResult:
-        """The plan of the current paths: assignment, history, final E-step, constraint reports."""
+        """The plan of the current paths: assignment, history, final E-step, constraint reports.
+
+        A plan with a non-finite state is never returned (:class:`~pmht_opt.exceptions.SolverError`).
+        """
         scenario, cfg = self.scenario, self.config
+        validation.check_finite_plan(self.states, self.solver)
         N, M = scenario.n_locales, scenario.n_platforms
         assignment, visit_time = self.estep.map_assignment()
         reports: tuple[Any, ...] = ()

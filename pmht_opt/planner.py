@@ -12,12 +12,14 @@ extra constraints once the penalty ``r`` stays fixed. :func:`plan_pmht` runs the
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from pmht_opt import validation
 from pmht_opt.anneal import Anneal, as_anneal
 from pmht_opt.constraints.base import Constraint
 from pmht_opt.estep import gate_margin
@@ -33,6 +35,9 @@ ProgressCallback = Callable[[int, float], None]
 class PMHTConfig:
     """Settings of :func:`plan_pmht`.
 
+    Every field is checked on construction (:mod:`pmht_opt.validation`): a string or a boolean where a
+    number belongs, a non-finite or out-of-range value raises :class:`ConfigError` naming the field.
+
     Parameters
     ----------
     solver
@@ -40,7 +45,7 @@ class PMHTConfig:
         ``"clarabel"`` with them), ``"banded"``, ``"clarabel"``, ``"osqp"``, ``"cvxpy"`` or
         ``"kalman"`` (:func:`~pmht_opt.available_backends`).
     max_iter
-        Maximum number of EM iterations (the paper: 100).
+        Maximum number of EM iterations (the paper: 100), an integer from 1 to 1e6.
     tol
         Stop when the relative change of the EM objective between iterations falls below ``tol``;
         ``0`` runs exactly ``max_iter`` iterations.
@@ -111,30 +116,30 @@ class PMHTConfig:
 
     def __post_init__(self) -> None:
         self.anneal = as_anneal(self.anneal)
+        if validation.is_real(self.estep_gate):
+            self.estep_gate = validation.real("estep_gate", self.estep_gate, ConfigError, 0.0, lo_open=True)
         gate_margin(self.estep_gate, 1, 1)  # validates (ConfigError)
         if isinstance(self.estep_gate, str):
             self.estep_gate = self.estep_gate.lower()
-        elif self.estep_gate is not None:
-            self.estep_gate = float(self.estep_gate)
+        if not isinstance(self.solver, str):
+            raise ConfigError(f"solver: expected a backend name, got {validation.describe(self.solver)}.")
         self.solver = check_backend(self.solver)
-        if isinstance(self.max_iter, bool) or not isinstance(self.max_iter, (int, np.integer)):
-            raise ConfigError(f"max_iter: expected a positive integer, got {self.max_iter!r}.")
-        if self.max_iter < 1:
-            raise ConfigError(f"max_iter: expected a positive integer, got {self.max_iter}.")
-        self.max_iter = int(self.max_iter)
-        try:
-            tol = float(self.tol)
-        except (TypeError, ValueError):
-            raise ConfigError(f"tol: expected a non-negative number, got {self.tol!r}.") from None
-        if not np.isfinite(tol) or tol < 0:
-            raise ConfigError(f"tol: expected a finite non-negative number, got {self.tol!r}.")
-        self.tol = tol
+        self.max_iter = validation.integer(
+            "max_iter", self.max_iter, ConfigError, 1, validation.MAX_ITERATIONS
+        )
+        self.tol = validation.real("tol", self.tol, ConfigError, 0.0)
         for key in ("update_time_prior", "update_platform_prior", "accept_inaccurate"):
             if not isinstance(getattr(self, key), (bool, np.bool_)):
                 raise ConfigError(f"{key}: expected True or False, got {getattr(self, key)!r}.")
         if not isinstance(self.solver_settings, dict):
             kind = type(self.solver_settings).__name__
             raise ConfigError(f"solver_settings: expected a dict, got {kind}.")
+        bad = [k for k in self.solver_settings if not isinstance(k, str)]
+        if bad:
+            raise ConfigError(f"solver_settings: expected setting names (strings), got {bad[0]!r}.")
+        for key, value in self.solver_settings.items():
+            if isinstance(value, float) and math.isnan(value):
+                raise ConfigError(f"solver_settings: {key} is NaN, which no backend can use.")
         if self.threads is not None:
             if (
                 isinstance(self.threads, bool)
@@ -160,9 +165,7 @@ class PMHTConfig:
         implied = [i for con in self.constraints for i in con.implied() if i.name not in given]
         self.constraints = (*self.constraints, *{i.name: i for i in implied}.values())
         check_constraints(self.solver, self.constraints)
-        self.snapshots = tuple(int(s) for s in self.snapshots)
-        if any(s < 0 for s in self.snapshots):
-            raise ConfigError(f"snapshots: iterations must be >= 0, got {self.snapshots}.")
+        self.snapshots = validation.integers("snapshots", self.snapshots, ConfigError, 0)
         stop = (self.stop,) if callable(self.stop) else self.stop
         try:
             self.stop = tuple(stop)

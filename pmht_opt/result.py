@@ -10,9 +10,11 @@ from typing import Any
 import numpy as np
 
 import solvers
+from pmht_opt import validation
 from pmht_opt.constraints.base import Constraint, ConstraintReport
 from pmht_opt.constraints.params import positive_number
 from pmht_opt.estep import EStepSummary
+from pmht_opt.exceptions import ConfigError
 from pmht_opt.geometry import count_crossings, point_polyline_distance
 from pmht_opt.model import ACC, POS, VEL
 from pmht_opt.scenario import Scenario
@@ -222,7 +224,7 @@ class PlanResult:
 
     def max_excursion(self, bounds: tuple[float, float, float, float] | None = None) -> float:
         """Largest distance of any position outside ``bounds`` (default: the scenario's area)."""
-        box = bounds if bounds is not None else self.scenario.bounds
+        box = validation.box("bounds", bounds, ConfigError) if bounds is not None else self.scenario.bounds
         assert box is not None
         return excursion(self.positions, box)
 

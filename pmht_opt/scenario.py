@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-import math
+import logging
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -11,8 +11,11 @@ from typing import Any, Literal
 
 import numpy as np
 
+from pmht_opt import validation
 from pmht_opt.exceptions import ScenarioError
 from pmht_opt.model import STATE_DIM, MotionModel
+
+_log = logging.getLogger("pmht_opt")
 
 Bounds = tuple[float, float, float, float]
 
@@ -20,63 +23,55 @@ Bounds = tuple[float, float, float, float]
 PAPER_BOUNDS: Bounds = (0.0, 10.0, 0.0, 10.0)
 #: Fixed starts of scenario B: outside the map on the left.
 SCENARIO_B_STARTS = np.array([[-1.0, 2.5], [-1.0, 5.0], [-1.0, 7.5]])
-
-
-def _number(name: str, value: Any) -> float:
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise ScenarioError(f"{name} must be a number, got {value!r}.") from None
-    if not math.isfinite(out):
-        raise ScenarioError(f"{name} must be finite, got {value!r}.")
-    return out
+#: The fields of a scenario, as files and :meth:`Scenario.to_dict` hold them.
+SCENARIO_FIELDS = ("name", "horizon", "dt", "q", "r", "bounds", "coverage_radius", "locales", "starts")
 
 
 def _array(name: str, value: Any, widths: tuple[int, ...]) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ScenarioError(f"{name} must be a numeric array, got {type(value).__name__}.") from None
+    """A finite ``(K, w)`` array, ``K >= 1`` and ``w`` in ``widths``, of values the numerics handle."""
+    arr = validation.real_array(name, value, ScenarioError)
     if arr.ndim != 2 or arr.shape[1] not in widths:
         want = " or ".join(f"(K, {w})" for w in widths)
         raise ScenarioError(f"{name} must have shape {want}, got {arr.shape}.")
     if arr.shape[0] < 1:
         raise ScenarioError(f"{name} must have at least one row, got {arr.shape[0]}.")
-    if not np.all(np.isfinite(arr)):
-        bad = np.argwhere(~np.isfinite(arr))[0]
-        raise ScenarioError(f"{name} has a non-finite value at row {bad[0]}, column {bad[1]}.")
-    return arr
+    return validation.bounded(name, arr, validation.COORDINATE_MAX, ScenarioError)
 
 
 @dataclass
 class Scenario:
     """A planning problem.
 
+    Every field is checked on construction (:mod:`pmht_opt.validation`): numbers must be numbers
+    (not strings or booleans), finite, and within the ranges the numerics handle (docs/model.md
+    section 14); anything else raises :class:`~pmht_opt.exceptions.ScenarioError` naming the field.
+
     Parameters
     ----------
     locales
-        Positions ``(N, 2)`` to visit, known exactly.
+        Positions ``(N, 2)`` to visit, known exactly; ``|coordinate| <= 1e7``.
     starts
         Platforms' starts: positions ``(M, 2)`` (zero initial speed and acceleration) or full states
-        ``(M, 6)`` in the order ``[px, vx, ax, py, vy, ay]``.
+        ``(M, 6)`` in the order ``[px, vx, ax, py, vy, ay]``; every component ``<= 1e7`` in magnitude.
     horizon
-        Number of time steps ``T`` (the plan covers ``t = 0..T``).
+        Number of time steps ``T`` (the plan covers ``t = 0..T``), an integer from 2 to 100000.
     dt
-        Time step in seconds.
+        Time step in seconds, in ``[1e-4, 1e4]``.
     q
-        Process noise intensity of the constant-acceleration model (paper: 1e-8).
+        Process noise intensity of the constant-acceleration model (paper: 1e-8), in ``[1e-14, 1e3]``.
     r
-        Variance of the Gaussian fitting penalty (paper: 1e-2, i.e. sigma = 0.1).
+        Variance of the Gaussian fitting penalty (paper: 1e-2, i.e. sigma = 0.1), in ``[1e-10, 1e12]``.
     bounds
         ``(xmin, xmax, ymin, ymax)`` of the area of interest, used by metrics and plots. Defaults to the
-        bounding box of the locales.
+        bounding box of the locales (logged at level INFO on the ``pmht_opt`` logger, as the command
+        line prints it).
     name
-        A label for reports.
+        A label for reports: any text (files write it as UTF-8).
     coverage_radius
         The sensor footprint ``rho``: a locale counts as covered when some platform's path passes
         within ``rho`` of it (docs/model.md section 11). Used by the coverage metrics, guaranteed visits
         and the coverage planner unless they are given their own radius. Default 0.3, three standard
-        deviations of the paper's penalty (``r = 0.01``).
+        deviations of the paper's penalty (``r = 0.01``); in ``(0, 1e7]``.
     """
 
     locales: np.ndarray
@@ -101,31 +96,26 @@ class Scenario:
             full = starts
         self.starts = starts
         self.initial_states = full
-        if isinstance(self.horizon, bool) or not isinstance(self.horizon, (int, np.integer)):
-            horizon = _number("horizon", self.horizon)
-            if horizon != int(horizon):
-                raise ScenarioError(f"horizon must be a whole number of steps, got {self.horizon!r}.")
-            self.horizon = int(horizon)
-        self.horizon = int(self.horizon)
-        if self.horizon < 2:
-            raise ScenarioError(f"horizon must be >= 2 time steps, got {self.horizon}.")
-        for key in ("dt", "q", "r", "coverage_radius"):
-            value = _number(key, getattr(self, key))
-            if value <= 0:
-                raise ScenarioError(f"{key} must be > 0, got {value}.")
-            setattr(self, key, value)
+        self.horizon = validation.integer("horizon", self.horizon, ScenarioError, *validation.HORIZON_RANGE)
+        for key, (lo, hi) in (
+            ("dt", validation.DT_RANGE),
+            ("q", validation.Q_RANGE),
+            ("r", validation.R_RANGE),
+        ):
+            setattr(self, key, validation.real(key, getattr(self, key), ScenarioError, lo, hi))
+        self.coverage_radius = validation.real(
+            "coverage_radius", self.coverage_radius, ScenarioError, 0.0, validation.RADIUS_MAX, lo_open=True
+        )
         if self.bounds is None:
             lo = self.locales.min(axis=0)
             hi = self.locales.max(axis=0)
             self.bounds = (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
+            _log.info(
+                "bounds: none given; assumed the locales' bounding box [%.6g, %.6g, %.6g, %.6g]", *self.bounds
+            )
         else:
-            if len(tuple(self.bounds)) != 4:
-                raise ScenarioError(f"bounds must be (xmin, xmax, ymin, ymax), got {self.bounds!r}.")
-            b = tuple(_number("bounds", v) for v in self.bounds)
-            if b[0] > b[1] or b[2] > b[3]:
-                raise ScenarioError(f"bounds must have xmin <= xmax and ymin <= ymax, got {b}.")
-            self.bounds = (b[0], b[1], b[2], b[3])
-        self.name = str(self.name)
+            self.bounds = validation.box("bounds", self.bounds, ScenarioError)
+        self.name = validation.text("name", self.name, ScenarioError)
 
     @property
     def n_locales(self) -> int:
@@ -174,8 +164,7 @@ class Scenario:
         """Build a scenario from :meth:`to_dict`'s form; unknown or missing keys raise ScenarioError."""
         if not isinstance(data, dict):
             raise ScenarioError(f"A scenario must be a table/object, got {type(data).__name__}.")
-        allowed = {"name", "horizon", "dt", "q", "r", "bounds", "coverage_radius", "locales", "starts"}
-        unknown = sorted(set(data) - allowed)
+        unknown = sorted(set(data) - set(SCENARIO_FIELDS))
         if unknown:
             raise ScenarioError(f"Unknown scenario field(s): {', '.join(unknown)}.")
         for key in ("locales", "starts"):
@@ -185,34 +174,54 @@ class Scenario:
         return cls(**kwargs)
 
     def save(self, path: str | Path) -> Path:
-        """Write to ``path``; ``.toml`` or ``.json`` by the suffix."""
+        """Write to ``path``; ``.toml`` or ``.json`` by the suffix, UTF-8, missing folders created.
+
+        :meth:`load` reads the file back to the same scenario, whatever its name holds (any
+        character, control characters and quotes included).
+
+        Raises
+        ------
+        ScenarioError
+            Another suffix, or a path that cannot be written.
+        """
         path = Path(path)
         suffix = path.suffix.lower()
         if suffix == ".json":
-            path.write_text(json.dumps(self.to_dict(), indent=1) + "\n")
+            text = json.dumps(self.to_dict(), indent=1, ensure_ascii=False) + "\n"
         elif suffix == ".toml":
-            path.write_text(_to_toml(self.to_dict()))
+            from pmht_opt.io.toml_ import dumps
+
+            text = dumps(self.to_dict(), header="pmht-opt scenario")
         else:
             raise ScenarioError(f"Scenario files end in .toml or .json, got {path.name!r}.")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(text, encoding="utf-8")
+        except OSError as err:
+            raise ScenarioError(f"path: cannot write {str(path)!r}: {err.strerror or err}.") from err
         return path
 
     @classmethod
     def load(cls, path: str | Path) -> Scenario:
-        """Read a ``.toml`` or ``.json`` scenario file, raising ScenarioError naming what is wrong."""
+        """Read a ``.toml`` or ``.json`` scenario file (UTF-8), raising ScenarioError naming what is
+        wrong: the file, its encoding or syntax, or the field."""
         path = Path(path)
         suffix = path.suffix.lower()
+        if suffix not in (".json", ".toml"):
+            raise ScenarioError(f"Scenario files end in .toml or .json, got {path.name!r}.")
         try:
-            text = path.read_text()
+            text = path.read_text(encoding="utf-8")
         except OSError as err:
             raise ScenarioError(f"Cannot read scenario file {str(path)!r}: {err.strerror}.") from err
+        except UnicodeDecodeError as err:
+            raise ScenarioError(
+                f"{path.name}: not UTF-8 text (byte {err.start}: {err.reason}); scenario files are UTF-8."
+            ) from err
         try:
-            if suffix == ".json":
-                data = json.loads(text)
-            elif suffix == ".toml":
-                data = tomllib.loads(text)
-            else:
-                raise ScenarioError(f"Scenario files end in .toml or .json, got {path.name!r}.")
-        except (json.JSONDecodeError, tomllib.TOMLDecodeError) as err:
+            data = json.loads(text) if suffix == ".json" else tomllib.loads(text)
+        except RecursionError as err:
+            raise ScenarioError(f"Scenario file {str(path)!r} is nested too deeply to read.") from err
+        except ValueError as err:  # the decoders' errors, and integers longer than Python reads
             raise ScenarioError(f"Scenario file {str(path)!r} is not valid {suffix[1:]}: {err}") from err
         try:
             return cls.from_dict(data)
@@ -220,32 +229,6 @@ class Scenario:
             raise ScenarioError(f"{path.name}: {err}") from err
         except TypeError as err:
             raise ScenarioError(f"{path.name}: malformed scenario ({err}).") from err
-
-
-def _toml_value(value: Any) -> str:
-    if isinstance(value, str):
-        return json.dumps(value)
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        return repr(value)
-    if isinstance(value, list):
-        if value and isinstance(value[0], list):
-            rows = ",\n".join("  " + _toml_value(v) for v in value)
-            return "[\n" + rows + ",\n]"
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    raise ScenarioError(f"Cannot write {type(value).__name__} to TOML.")
-
-
-def _to_toml(data: dict[str, Any]) -> str:
-    lines = ["# pmht-opt scenario"]
-    for key, value in data.items():
-        if value is None:
-            continue
-        lines.append(f"{key} = {_toml_value(value)}")
-    return "\n".join(lines) + "\n"
 
 
 ScenarioKind = Literal["A", "B", "C"]
@@ -264,14 +247,20 @@ def paper_scenario(kind: str, seed: int | np.random.Generator | None = 0, **over
     kind
         ``"A"``, ``"B"`` or ``"C"`` (case-insensitive).
     seed
-        Seed or ``numpy.random.Generator``; the same seed gives the same scenario.
+        A non-negative integer or a ``numpy.random.Generator``; the same seed gives the same scenario.
+        ``None`` draws fresh entropy (not reproducible).
     overrides
-        Scenario fields to change (e.g. ``horizon=200``).
+        Scenario fields to change (e.g. ``horizon=200``); another keyword raises ScenarioError.
     """
-    key = str(kind).upper()
+    key = kind.upper() if isinstance(kind, str) else None
     if key not in ("A", "B", "C"):
-        raise ScenarioError(f"Paper scenarios are 'A', 'B' and 'C', got {kind!r}.")
-    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        raise ScenarioError(f"kind: paper scenarios are 'A', 'B' and 'C', got {kind!r}.")
+    unknown = sorted(set(overrides) - set(SCENARIO_FIELDS))
+    if unknown:
+        raise ScenarioError(
+            f"{unknown[0]}: not a scenario field; paper_scenario takes {', '.join(SCENARIO_FIELDS)}."
+        )
+    rng = validation.seed("seed", seed, ScenarioError)
     lo, hi = PAPER_BOUNDS[0], PAPER_BOUNDS[1]
     if key == "A":
         centres = np.arange(10) + 0.5

@@ -12,7 +12,7 @@ from typing import Any, ClassVar
 import clarabel
 import numpy as np
 
-from solvers.exceptions import SettingsError
+from solvers.exceptions import ProblemError, SettingsError
 from solvers.problem import Cone, QPSolution, Status
 from solvers.session import QPSession, Update
 
@@ -56,7 +56,7 @@ def _settings(options: dict[str, Any]) -> Any:
             raise SettingsError(f"Clarabel has no setting {key!r}.")
         try:
             setattr(settings, key, value)
-        except (TypeError, ValueError) as err:
+        except (TypeError, ValueError, OverflowError) as err:
             raise SettingsError(f"Clarabel rejected {key}={value!r}: {err}") from err
     return settings
 
@@ -71,7 +71,12 @@ class ClarabelSession(QPSession):
         prob = self.problem
         settings = _settings({**DEFAULTS, **self.settings})
         cones = [_cone(c) for c in prob.cones]
-        self._solver = clarabel.DefaultSolver(prob.P, prob.q, prob.A, prob.b, cones, settings)
+        try:
+            self._solver = clarabel.DefaultSolver(prob.P, prob.q, prob.A, prob.b, cones, settings)
+        except Exception as err:  # Clarabel raises a plain Exception for what it refuses at setup
+            if "settings" in str(err).lower():
+                raise SettingsError(f"Clarabel rejected its settings: {err}") from err
+            raise ProblemError(f"Clarabel refused the problem: {err}") from err
 
     def _apply_update(self, update: Update) -> None:
         names = {"P": update.P_data, "q": update.q, "A": update.A_data, "b": update.b}

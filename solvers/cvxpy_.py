@@ -87,6 +87,22 @@ def cone_constraints(slack: Any, cones: Sequence[Cone]) -> list[Any]:
     return out
 
 
+def _interrupted(problem: cp.Problem, solver: str) -> bool:
+    """Whether ``solver`` stopped on an interrupt it caught itself (SIGINT during OSQP's iterations).
+
+    cvxpy reports that only as a solver error; the raw OSQP result, which cvxpy keeps in the
+    problem's solver cache, says whether it was an interrupt.
+    """
+    if solver.upper() != "OSQP":
+        return False
+    import osqp
+
+    cache = getattr(problem, "_solver_cache", None)
+    entry = cache.get("OSQP") if isinstance(cache, dict) else None
+    info = getattr(entry[-1], "info", None) if isinstance(entry, tuple) and entry else None
+    return getattr(info, "status_val", None) == osqp.SolverStatus.OSQP_SIGINT
+
+
 def solve_to_solution(
     problem: cp.Problem,
     read_x: Callable[[], np.ndarray | None],
@@ -109,7 +125,10 @@ def solve_to_solution(
             warnings.simplefilter("ignore", UserWarning)
             problem.solve(solver=solver, **options)
     except cp.error.SolverError as err:
-        raw, status = f"solver_error: {err}", Status.NUMERICAL_ERROR
+        if _interrupted(problem, solver):
+            raw, status = "interrupted", Status.INTERRUPTED
+        else:
+            raw, status = f"solver_error: {err}", Status.NUMERICAL_ERROR
     except TypeError as err:
         raise SettingsError(f"{backend}: cvxpy rejected the solver options {options}: {err}") from err
     else:

@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 import numpy as np
 import osqp
 
-from solvers.exceptions import SettingsError, UnsupportedProblemError
+from solvers.exceptions import ProblemError, SettingsError, UnsupportedProblemError, UpdateError
 from solvers.problem import QPSolution, Status
 from solvers.session import QPSession, Update
 
@@ -45,6 +45,26 @@ _STATUS = {
 }
 
 
+def _error_name(err: Exception) -> str:
+    """OSQP's name of the error code an ``OSQPException`` carries."""
+    code = err.args[0] if err.args else None
+    try:
+        return osqp.SolverError(code).name
+    except ValueError:
+        return f"error {code!r}"
+
+
+def _setup_error(err: Exception) -> Exception:
+    """The layer's error for an ``OSQPException`` at setup: its settings or its data were refused.
+
+    OSQP's C code also prints its own line on stderr naming the offending setting or bound.
+    """
+    name = _error_name(err)
+    if err.args and err.args[0] == osqp.SolverError.OSQP_SETTINGS_VALIDATION_ERROR:
+        return SettingsError(f"OSQP rejected its settings ({name}).")
+    return ProblemError(f"OSQP refused the problem ({name}).")
+
+
 class OSQPSession(QPSession):
     """A problem held by one ``osqp.OSQP`` workspace; updates reuse its factorisation structure."""
 
@@ -72,8 +92,10 @@ class OSQPSession(QPSession):
         prob = self.problem
         try:
             self._solver.setup(prob.P, prob.q, prob.A, lower, upper, **opts)
-        except ValueError as err:
+        except (TypeError, ValueError) as err:
             raise SettingsError(f"OSQP rejected its settings: {err}") from err
+        except osqp.OSQPException as err:
+            raise _setup_error(err) from err
 
     def _apply_update(self, update: Update) -> None:
         kwargs: dict[str, Any] = {}
@@ -86,7 +108,10 @@ class OSQPSession(QPSession):
         if update.A_data is not None:
             kwargs["Ax"] = update.A_data
         if kwargs:
-            self._solver.update(**kwargs)
+            try:
+                self._solver.update(**kwargs)
+            except osqp.OSQPException as err:
+                raise UpdateError(f"OSQP rejected the update: {_error_name(err)}.") from err
 
     def _solve(self) -> QPSolution:
         t0 = time.perf_counter()

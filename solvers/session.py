@@ -9,7 +9,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from solvers.exceptions import UpdateError
-from solvers.problem import QPProblem, QPSolution
+from solvers.problem import QPProblem, QPSolution, Status
 
 
 @dataclass(frozen=True)
@@ -101,8 +101,19 @@ class QPSession(abc.ABC):
         self._apply_update(Update(P_data, q, A_data, b))
 
     def solve(self) -> QPSolution:
-        """Solve the current problem and return the backend's answer with a mapped status."""
-        return self._solve()
+        """Solve the current problem and return the backend's answer with a mapped status.
+
+        Raises
+        ------
+        KeyboardInterrupt
+            When the backend reports that it stopped on an interrupt (OSQP and Clarabel catch SIGINT
+            themselves and return a status): an interrupt is the user's, never a failed solve to retry
+            with other settings.
+        """
+        sol = self._solve()
+        if sol.status is Status.INTERRUPTED:
+            raise KeyboardInterrupt(f"{sol.backend}: the solve was interrupted ({sol.raw_status}).")
+        return sol
 
 
 def _checked(name: str, values: np.ndarray | None, size: int) -> np.ndarray | None:

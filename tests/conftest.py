@@ -5,10 +5,27 @@ Tolerances are per backend and stated once here (STYLE lesson 7).
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
+from hypothesis import settings
 
 import pmht_opt as po
+
+#: Examples per property-based test under the "ci" profile (the default): a few seconds in all. The
+#: "long" profile draws ten times as many, for deliberate runs: ``HYPOTHESIS_PROFILE=long pytest``.
+#: Both are derandomised: every run draws the same examples.
+CI_EXAMPLES = 30
+settings.register_profile("ci", max_examples=CI_EXAMPLES, deadline=None, derandomize=True)
+settings.register_profile("long", max_examples=10 * CI_EXAMPLES, deadline=None, derandomize=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+def examples(n: int) -> int:
+    """``n`` examples under the "ci" profile, scaled like the loaded profile (ten times under "long")."""
+    return max(1, n * settings().max_examples // CI_EXAMPLES)
+
 
 #: Backends of the M-step that every cross-check runs.
 QP_BACKENDS = ["clarabel", "osqp", "cvxpy"]

@@ -6,6 +6,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from pmht_opt import validation
 from pmht_opt.constraints.base import Constraint, ConstraintContext
 from pmht_opt.constraints.blocks import Block, state_rows
 from pmht_opt.constraints.params import is_real, positive_number
@@ -29,8 +30,15 @@ class AreaBounds(Constraint):
             raise ConfigError(
                 f"AreaBounds: expected four numbers xmin, xmax, ymin, ymax, got {(xmin, xmax, ymin, ymax)!r}."
             )
-        box = np.array([xmin, xmax, ymin, ymax], dtype=float)
-        if not np.all(np.isfinite(box)) or box[0] >= box[1] or box[2] >= box[3]:
+        lim = validation.COORDINATE_MAX
+        names = ("xmin", "xmax", "ymin", "ymax")
+        box = np.array(
+            [
+                validation.real(f"AreaBounds.{k}", v, ConfigError, -lim, lim)
+                for k, v in zip(names, (xmin, xmax, ymin, ymax), strict=True)
+            ]
+        )
+        if box[0] >= box[1] or box[2] >= box[3]:
             raise ConfigError(f"AreaBounds: expected finite xmin < xmax and ymin < ymax, got {box.tolist()}.")
         self.box = box
 

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from pmht_opt.constraints.blocks import Block
-from pmht_opt.constraints.params import check_platforms, positive_number
+from pmht_opt.constraints.params import WEIGHT_MAX, check_platforms, positive_number
 from pmht_opt.exceptions import ConfigError
 
 if TYPE_CHECKING:
@@ -135,7 +135,7 @@ class Constraint(abc.ABC):
         if not isinstance(soft, (bool, np.bool_)):
             raise ConfigError(f"{type(self).__name__}.soft: expected True or False, got {soft!r}.")
         self.soft = bool(soft)
-        self.weight = positive_number(f"{type(self).__name__}.weight", weight)
+        self.weight = positive_number(f"{type(self).__name__}.weight", weight, maximum=WEIGHT_MAX)
         self.platforms = check_platforms(type(self).__name__, platforms)
 
     @property

@@ -12,8 +12,16 @@ from typing import Any
 
 import numpy as np
 
+from pmht_opt import validation
 from pmht_opt.exceptions import ConfigError
 
+#: Largest length, radius, speed or acceleration a constraint takes: the coordinates' range
+#: (:data:`pmht_opt.validation.COORDINATE_MAX`); beyond it a limit never binds and only spoils the
+#: scaling of the rows.
+LENGTH_MAX = validation.COORDINATE_MAX
+#: Largest weight of a soft constraint: the M-step cost's terms are of order 1 to 1e4 on the paper's
+#: scenarios, and a slack cost beyond 1e12 of them leaves nothing of the cost for the solver to read.
+WEIGHT_MAX = 1e12
 #: Most sides an inner polygon may have: beyond this the rows cost far more than the 2e-5 relative
 #: margin they save over a 512-gon.
 MAX_SIDES = 512
@@ -25,55 +33,43 @@ def is_real(value: Any) -> bool:
 
 
 def real_array(name: str, value: Any) -> np.ndarray:
-    """``value`` (a number or a nested sequence of numbers) as a float array, or :class:`ConfigError`."""
-    if isinstance(value, (str, bytes)):
-        raise ConfigError(f"{name}: expected numbers, got the string {value!r}.")
-    try:
-        arr = np.asarray(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{name}: expected numbers, got {value!r}.") from None
-    if arr.dtype == object:
-        flat = list(np.ravel(arr))
-        if not all(is_real(v) for v in flat):
-            raise ConfigError(f"{name}: expected numbers, got {value!r}.")
-        arr = np.asarray(flat, dtype=float).reshape(arr.shape)
-    if arr.dtype.kind not in "iuf":
-        raise ConfigError(f"{name}: expected numbers, got {value!r}.")
-    return arr.astype(float)
+    """``value`` (a number or a nested sequence of numbers) as a float array, or :class:`ConfigError`
+    (:func:`pmht_opt.validation.real_array`)."""
+    return validation.real_array(name, value, ConfigError)
 
 
-def positive_number(name: str, value: Any, allow_zero: bool = False) -> float:
-    """``value`` as a finite positive float, or :class:`ConfigError` naming ``name``."""
-    kind = "non-negative" if allow_zero else "positive"
-    if not is_real(value):
-        raise ConfigError(f"{name}: expected a finite {kind} number, got {value!r}.")
-    out = float(value)
-    if not np.isfinite(out) or out < 0 or (out == 0 and not allow_zero):
-        raise ConfigError(f"{name}: expected a finite {kind} number, got {value!r}.")
-    return out
+def positive_number(name: str, value: Any, allow_zero: bool = False, maximum: float = LENGTH_MAX) -> float:
+    """``value`` as a finite positive float up to ``maximum``, or :class:`ConfigError` naming ``name``."""
+    return validation.real(name, value, ConfigError, 0.0, maximum, lo_open=not allow_zero)
 
 
 def limits(owner: str, value: Any) -> np.ndarray:
-    """A positive limit, or one per platform, as a 1-D float array."""
-    message = f"{owner}: expected a finite positive number or one per platform, got {value!r}."
+    """A positive limit up to :data:`LENGTH_MAX`, or one per platform, as a 1-D float array."""
+    message = (
+        f"{owner}: expected a finite positive number up to {LENGTH_MAX:g} or one per platform, "
+        f"got {validation.describe(value)}."
+    )
     try:
         arr = np.atleast_1d(real_array(owner, value))
     except ConfigError:
         raise ConfigError(message) from None
     if arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
         raise ConfigError(message)
+    if np.any(arr > LENGTH_MAX):
+        raise ConfigError(message)
     return arr
 
 
 def point_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
-    """``value`` as a finite float array of ``shape`` (``-1`` any length), or :class:`ConfigError`."""
+    """``value`` as a finite float array of ``shape`` (``-1`` any length), every value at most
+    :data:`~pmht_opt.validation.COORDINATE_MAX` in magnitude, or :class:`ConfigError`."""
     arr = real_array(name, value)
     ok = arr.ndim == len(shape) and all(s in (-1, d) for s, d in zip(shape, arr.shape, strict=True))
     if not ok:
         raise ConfigError(f"{name}: expected shape {shape}, got {arr.shape}.")
     if not np.all(np.isfinite(arr)):
         raise ConfigError(f"{name}: contains NaN or infinite values.")
-    return arr
+    return validation.bounded(name, arr, validation.COORDINATE_MAX, ConfigError)
 
 
 def check_sides(name: str, sides: Any) -> int:

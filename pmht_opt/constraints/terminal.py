@@ -8,7 +8,7 @@ import numpy as np
 
 from pmht_opt.constraints.base import Constraint, ConstraintContext
 from pmht_opt.constraints.blocks import DEFAULT_SIDES, Block, disc_block, state_rows
-from pmht_opt.constraints.params import check_sides, point_array, positive_number
+from pmht_opt.constraints.params import check_sides, point_array, positive_number, real_array
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.model import AX, AY, PX, PY, VX, VY
 
@@ -86,7 +86,7 @@ class Terminal(Constraint):
 
     @staticmethod
     def _points(name: str, value: Any) -> np.ndarray:
-        arr = point_array(f"Terminal.{name}", value, (-1,) if np.ndim(value) == 1 else (-1, 2))
+        arr = real_array(f"Terminal.{name}", value)
         return point_array(f"Terminal.{name}", arr.reshape(1, -1) if arr.ndim == 1 else arr, (-1, 2))
 
     @property

@@ -18,6 +18,7 @@ import numpy as np
 from pmht_opt.exceptions import ScenarioError
 from pmht_opt.geo import GeoOrigin
 from pmht_opt.model import AX, AY, PX, PY, STATE_DIM, VX, VY
+from pmht_opt.validation import output_file
 
 #: The columns of a plan's CSV (``lat`` and ``lon`` follow with an origin).
 COLUMNS = ("platform", "step", "time", "x", "y", "vx", "vy", "ax", "ay")
@@ -32,7 +33,7 @@ def export_csv(result: Any, path: str | Path, origin: GeoOrigin | None = None) -
     Path
         ``path``.
     """
-    path = Path(path)
+    path = output_file(path)
     states = np.asarray(result.states)
     M, T1, _ = states.shape
     dt = float(result.scenario.dt)

@@ -32,9 +32,14 @@ def number(field: str, value: Any) -> float:
     """A finite number, or :class:`ScenarioError` naming ``field``."""
     if not is_number(value):
         raise ScenarioError(f"{field}: expected a number, got {describe(value)}.")
-    if not math.isfinite(value):
+    try:
+        out = float(value)
+    except OverflowError:
+        message = f"{field}: expected a finite number, got an integer beyond the float range."
+        raise ScenarioError(message) from None
+    if not math.isfinite(out):
         raise ScenarioError(f"{field}: expected a finite number, got {value!r}.")
-    return float(value)
+    return out
 
 
 def integer(field: str, value: Any) -> int:

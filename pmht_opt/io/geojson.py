@@ -28,6 +28,7 @@ import numpy as np
 from pmht_opt.exceptions import ScenarioError
 from pmht_opt.geo import GeoOrigin
 from pmht_opt.io.frame import GEO_DECIMALS
+from pmht_opt.validation import output_file
 
 #: Every feature's ``kind`` property.
 KINDS = ("path", "locale", "start")
@@ -112,7 +113,7 @@ def _flat(geometry: dict[str, Any]) -> list[list[float]]:
 
 def export_geojson(result: Any, path: str | Path, origin: GeoOrigin | None = None) -> Path:
     """Write the plan ``result`` to ``path`` as GeoJSON (module notes); returns ``path``."""
-    path = Path(path)
+    path = output_file(path)
     path.write_text(json.dumps(plan_geojson(result, origin)) + "\n")
     return path
 

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pmht_opt.anneal import Anneal
 from pmht_opt.constraints.base import Constraint
 from pmht_opt.exceptions import ConfigError, PmhtOptError, ScenarioError
 from pmht_opt.geo import GeoOrigin
@@ -54,6 +55,7 @@ from pmht_opt.io.points import read_points
 from pmht_opt.io.settings import PlannerSettings, read_settings
 from pmht_opt.io.toml_ import dumps
 from pmht_opt.scenario import Scenario
+from pmht_opt.validation import output_file
 
 #: Scenario fields in files, and how each is read.
 SCENARIO_FIELDS = ("name", "horizon", "dt", "q", "r", "bounds", "coverage_radius", "locales", "starts")
@@ -192,8 +194,14 @@ def _read_geo(data: Any) -> tuple[GeoOrigin, float]:
         raise ScenarioError(f"geo.{err}") from None
 
 
-def mission_from_dict(data: Any, base: str | Path = ".", source: Path | None = None) -> Mission:
+def mission_from_dict(
+    data: Any, base: str | Path = ".", source: Path | None = None, *, check_schedule: bool = True
+) -> Mission:
     """A mission from a parsed file (a dict); ``base`` is where relative point files are found.
+
+    ``check_schedule=False`` leaves the ``[planner]`` annealing schedule unchecked against the
+    scenario's ``r``, for a caller that replaces it (the command line's ``--anneal`` and
+    ``--no-anneal``) and checks its own.
 
     Raises
     ------
@@ -219,6 +227,11 @@ def mission_from_dict(data: Any, base: str | Path = ".", source: Path | None = N
         except PmhtOptError as err:
             raise type(err)(f"constraints[{i}]: {err}") from None
     planner = read_settings("planner", top["planner"]) if "planner" in top else PlannerSettings()
+    if not check_schedule:
+        unchecked = planner.replace(anneal=Anneal(iterations=0))  # the caller's schedule replaces it
+        mission = Mission(scenario, constraints, unchecked, origin, altitude, assumed, source)
+        mission.planner = planner
+        return mission
     try:
         planner.check_r(scenario.r)
     except ConfigError as err:
@@ -226,8 +239,9 @@ def mission_from_dict(data: Any, base: str | Path = ".", source: Path | None = N
     return Mission(scenario, constraints, planner, origin, altitude, assumed, source)
 
 
-def load_mission(path: str | Path) -> Mission:
-    """Read a mission (or plain scenario) file, ``.toml`` or ``.json``.
+def load_mission(path: str | Path, *, check_schedule: bool = True) -> Mission:
+    """Read a mission (or plain scenario) file, ``.toml`` or ``.json`` (``check_schedule``: see
+    :func:`mission_from_dict`).
 
     Raises
     ------
@@ -242,12 +256,16 @@ def load_mission(path: str | Path) -> Mission:
         text = path.read_text(encoding="utf-8")
     except OSError as err:
         raise ScenarioError(f"cannot read {str(path)!r}: {err.strerror or err}.") from None
+    except UnicodeDecodeError as err:
+        raise ScenarioError(f"{path.name}: not UTF-8 text (byte {err.start}: {err.reason}).") from None
     try:
         data = json.loads(text) if suffix == ".json" else tomllib.loads(text)
-    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as err:
+    except RecursionError:
+        raise ScenarioError(f"{path.name}: nested too deeply to read.") from None
+    except ValueError as err:  # the decoders' errors, and integers longer than Python reads
         raise ScenarioError(f"{path.name}: not valid {suffix[1:].upper()}: {err}.") from None
     try:
-        return mission_from_dict(data, path.parent, path)
+        return mission_from_dict(data, path.parent, path, check_schedule=check_schedule)
     except PmhtOptError as err:
         raise type(err)(f"{path.name}: {err}") from None
 
@@ -259,9 +277,14 @@ def save_mission(mission: Mission, path: str | Path) -> Path:
     suffix = path.suffix.lower()
     data = mission.to_dict()
     if suffix == ".json":
-        path.write_text(json.dumps({k: v for k, v in data.items() if v is not None}, indent=1) + "\n")
+        text = json.dumps({k: v for k, v in data.items() if v is not None}, indent=1, ensure_ascii=False)
+        text += "\n"
     elif suffix == ".toml":
-        path.write_text(dumps(data, header="pmht-opt mission"))
+        text = dumps(data, header="pmht-opt mission")
     else:
         raise ScenarioError(f"{path.name}: mission files end in .toml or .json.")
+    try:
+        output_file(path).write_text(text, encoding="utf-8")
+    except OSError as err:
+        raise ScenarioError(f"path: cannot write {str(path)!r}: {err.strerror or err}.") from err
     return path

@@ -50,6 +50,8 @@ def read_points(path: str | Path, frame: Frame | None = None, kind: str = "local
         text = path.read_text(encoding="utf-8-sig")
     except OSError as err:
         raise ScenarioError(f"cannot read {str(path)!r}: {err.strerror or err}.") from None
+    except UnicodeDecodeError as err:
+        raise ScenarioError(f"{path.name}: not UTF-8 text (byte {err.start}: {err.reason}).") from None
     if suffix == ".csv":
         return _read_csv(path.name, text, frame)
     if suffix in (".geojson", ".json"):
@@ -118,7 +120,9 @@ def _geometries(obj: Any) -> list[tuple[dict[str, Any], dict[str, Any]]]:
 def _read_geojson(name: str, text: str, frame: Frame, kind: str) -> list[list[float]]:
     try:
         obj = json.loads(text)
-    except json.JSONDecodeError as err:
+    except RecursionError:
+        raise ScenarioError(f"{name}: nested too deeply to read.") from None
+    except ValueError as err:  # the decoder's errors, and integers longer than Python reads
         raise ScenarioError(f"{name}: not valid JSON: {err}.") from None
     plane = isinstance(obj, dict) and (obj.get("pmht_opt") or {}).get("frame") == "plane"
     if plane and frame.geo:

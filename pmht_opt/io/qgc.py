@@ -36,6 +36,7 @@ from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.geo import GeoOrigin
 from pmht_opt.geometry import point_polyline_distance
 from pmht_opt.io.frame import GEO_DECIMALS
+from pmht_opt.validation import output_file
 
 #: MAVLink commands used.
 NAV_WAYPOINT, NAV_LAND, NAV_TAKEOFF, DO_CHANGE_SPEED = 16, 21, 22, 178
@@ -246,7 +247,7 @@ def export_qgc_plan(
             firmware=firmware,
             vehicle=vehicle,
         )
-        file.write_text(json.dumps(plan, indent=2) + "\n")
+        output_file(file).write_text(json.dumps(plan, indent=2) + "\n")
         out.append(file)
     return out
 

@@ -2,16 +2,37 @@
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from typing import Any
 
 _BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+#: TOML's short escapes; every other control character is written as a ``\uXXXX`` escape.
+_ESCAPES = {'"': '\\"', "\\": "\\\\", "\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r"}
+
+
+def string(text: str) -> str:
+    """``text`` as a TOML basic string.
+
+    TOML forbids control characters (U+0000 to U+001F and U+007F) in a basic string and has no
+    surrogate escapes, so JSON's escaping is not TOML's: a character outside the Basic Multilingual
+    Plane is written as itself (the file is UTF-8), quotes, backslashes and control characters are
+    escaped.
+    """
+    out = []
+    for ch in text:
+        code = ord(ch)
+        if ch in _ESCAPES:
+            out.append(_ESCAPES[ch])
+        elif code < 0x20 or code == 0x7F:
+            out.append(f"\\u{code:04X}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
 
 
 def _key(key: str) -> str:
-    return key if _BARE_KEY.match(key) else json.dumps(key)
+    return key if _BARE_KEY.match(key) else string(key)
 
 
 def _is_table(value: Any) -> bool:
@@ -25,7 +46,7 @@ def _is_table_array(value: Any) -> bool:
 def value(v: Any) -> str:
     """One TOML value: strings, booleans, integers, floats, arrays and inline tables."""
     if isinstance(v, str):
-        return json.dumps(v)  # JSON's escapes are TOML basic-string escapes
+        return string(v)
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, int):
@@ -35,7 +56,7 @@ def value(v: Any) -> str:
             return "nan"
         if math.isinf(v):
             return "inf" if v > 0 else "-inf"
-        return repr(v)
+        return repr(float(v))  # numpy's floats are floats, but their repr is not TOML
     if isinstance(v, dict):
         return "{ " + ", ".join(f"{_key(k)} = {value(x)}" for k, x in v.items() if x is not None) + " }"
     if isinstance(v, (list, tuple)):

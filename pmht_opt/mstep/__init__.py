@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from pmht_opt import validation
 from pmht_opt.constraints.base import Constraint, ConstraintContext
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.mstep.base import MStep, MStepData, MStepOutput
@@ -31,10 +32,7 @@ from pmht_opt.scenario import Scenario
 
 
 def _weights(name: str, value: Any, shape: tuple[int, ...], nonneg: bool) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{name}: expected an array of numbers of shape {shape}.") from None
+    arr = validation.real_array(name, value, ConfigError)
     if arr.shape != shape:
         raise ConfigError(f"{name}: expected shape {shape}, got {arr.shape}.")
     if not np.all(np.isfinite(arr)):
@@ -44,6 +42,7 @@ def _weights(name: str, value: Any, shape: tuple[int, ...], nonneg: bool) -> np.
     return arr
 
 
+@validation.plan_boundary("the M-step")
 def solve_mstep(
     scenario: Scenario,
     W: Any,
@@ -89,12 +88,7 @@ def solve_mstep(
     T, M = scenario.horizon, scenario.n_platforms
     W = _weights("W", W, (T, M), nonneg=True)
     WZ = _weights("WZ", WZ, (T, M, 2), nonneg=False)
-    try:
-        r = float(r)
-    except (TypeError, ValueError):
-        raise ConfigError(f"r: expected a finite positive number, got {r!r}.") from None
-    if not np.isfinite(r) or r <= 0:
-        raise ConfigError(f"r: expected a finite positive number, got {r!r}.")
+    r = validation.real("r", r, ConfigError, *validation.R_RANGE)
     cons = tuple(constraints)
     for con in cons:
         if not isinstance(con, Constraint):

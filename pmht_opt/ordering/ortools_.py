@@ -128,7 +128,10 @@ def arc_costs(scenario: Scenario, closed: bool = False) -> tuple[np.ndarray, flo
 def _check_time_limit(time_limit: Any) -> float | None:
     if time_limit is None:
         return None
-    value = float(time_limit) if isinstance(time_limit, numbers.Real) else math.nan
+    try:
+        value = float(time_limit) if isinstance(time_limit, numbers.Real) else math.nan
+    except OverflowError:  # an integer beyond the float range
+        value = math.nan
     if isinstance(time_limit, bool) or not (math.isfinite(value) and value > 0):
         raise ConfigError(f"time_limit: expected a positive number of seconds or None, got {time_limit!r}.")
     return value

@@ -41,6 +41,12 @@ from pmht_opt.stopping import AnyOf, MaxIterations, Progress, StoppingCriterion,
 Callback = Callable[[int, float], Any]
 
 
+#: Largest population: the GA holds ``population x N`` locale indices and costs them every generation.
+POPULATION_MAX = 10_000
+#: Most generations a run may ask for (minutes on the paper's scenarios with the default population).
+ITERATIONS_MAX = 10_000_000
+
+
 @dataclass(frozen=True)
 class GAParams:
     """Parameters of :func:`solve_ga_tsp`, validated on construction.
@@ -78,9 +84,14 @@ class GAParams:
         pop = self.population
         if isinstance(pop, bool) or not isinstance(pop, numbers.Integral) or pop <= 0 or pop % group:
             raise ConfigError(f"population: expected a positive multiple of {group}, got {pop!r}.")
+        if pop > POPULATION_MAX:
+            raise ConfigError(f"population: expected a multiple of {group} up to {POPULATION_MAX}, got {pop}")
         object.__setattr__(self, "population", int(pop))
         if self.iterations is not None:
-            object.__setattr__(self, "iterations", _check_int("iterations", self.iterations, 1))
+            iterations = _check_int("iterations", self.iterations, 1)
+            if iterations > ITERATIONS_MAX:
+                raise ConfigError(f"iterations: expected at most {ITERATIONS_MAX}, got {iterations}.")
+            object.__setattr__(self, "iterations", iterations)
         object.__setattr__(self, "min_tour", _check_int("min_tour", self.min_tour, 1))
         if self.restart is not None and not isinstance(self.restart, RestartPolicy):
             raise ConfigError(
