@@ -71,7 +71,8 @@ CASES = [
 
 @pytest.mark.parametrize(("kind", "solver"), CASES)
 def test_motion_area_obstacles_terminal_hold(kind: str, solver: str, speeds: dict[str, float]) -> None:
-    sc = paper_scenario(kind, seed=1)
+    # The slower backends on a shorter horizon: the same rows, a fraction of the cost.
+    sc = paper_scenario(kind, seed=1, **({} if solver == "clarabel" else {"horizon": 150}))
     vmax = 0.7 * speeds[kind]
     cons = [
         SpeedLimit(vmax),
@@ -98,12 +99,12 @@ def test_motion_area_obstacles_terminal_hold(kind: str, solver: str, speeds: dic
 
 #: Every scenario with clarabel; each other backend on one scenario (OSQP's constrained solves of
 #: guaranteed visits take thousands of ADMM iterations: seconds per M-step).
-VISIT_CASES = [("A", "clarabel"), ("B", "clarabel"), ("C", "clarabel"), ("B", "osqp"), ("C", "cvxpy")]
+VISIT_CASES = [("A", "clarabel"), ("B", "clarabel"), ("C", "clarabel"), ("A", "osqp"), ("C", "cvxpy")]
 
 
 @pytest.mark.parametrize(("kind", "solver"), VISIT_CASES)
 def test_visit_all_guarantees_coverage(kind: str, solver: str) -> None:
-    sc = paper_scenario(kind, seed=1)
+    sc = paper_scenario(kind, seed=1, **({"horizon": 250} if solver == "cvxpy" else {}))
     # A short annealing schedule; VisitAll's warm-up counts from its end (settled r), so the visits
     # are chosen from sharp weights and imposed on the last iterations.
     n_iter, anneal = 12, 6
