@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 import time
-import types
 from pathlib import Path
 from typing import Any
 
@@ -61,30 +60,13 @@ def test_the_smoothed_planner_plans_as_the_library(tmp_path: Path) -> None:
     assert again["metrics"]["iterations"] == 2
 
 
-def test_the_coverage_planner_is_wired_by_name(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
-) -> None:
+def test_the_coverage_planner_plans_as_the_library(tmp_path: Path) -> None:
     path = write(tmp_path, mission_text(planner=f'kind = "coverage"\nradius = 0.5\n{PLANNER}'))
-    try:
-        import pmht_opt.coverage  # noqa: F401
-    except ModuleNotFoundError:
-        assert main(["plan", str(path), "--quiet"]) == 2
-        assert "no coverage planner yet" in capsys.readouterr().err
-    calls: list[tuple[float, po.PMHTConfig]] = []
-
-    def plan_coverage(
-        scenario: po.Scenario, radius: float, config: po.PMHTConfig, **kw: Any
-    ) -> po.PlanResult:
-        calls.append((radius, config))
-        return po.plan_pmht(scenario, config)
-
-    monkeypatch.setitem(sys.modules, "pmht_opt.coverage", types.SimpleNamespace(plan_coverage=plan_coverage))
     got = plan_json(tmp_path, ["plan", str(path), "--return-to-base"])
-    (radius, config), *_ = calls
-    assert radius == 0.5 and config.max_iter == 4
-    assert [type(c) for c in config.constraints] == [po.Terminal]
-    want = po.plan_pmht(library_scenario(), config)
-    assert np.allclose(got["positions"], want.positions, atol=1e-9)
+    config = po.PMHTConfig(max_iter=4, anneal=None, constraints=[po.Terminal.return_to_base()])
+    want = po.plan_coverage(library_scenario(), 0.5, config)
+    assert np.allclose(got["positions"], want.positions, rtol=0, atol=1e-9)
+    assert want.coverage(0.5) == 1.0
 
 
 def test_return_to_base_ends_at_the_start_at_rest(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

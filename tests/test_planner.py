@@ -111,7 +111,8 @@ def test_tol_zero_runs_exactly_max_iter_and_tol_stops_early() -> None:
 
 def test_history_and_shapes(scenario_a: po.Scenario, full_plans: dict[str, po.PlanResult]) -> None:
     res = full_plans["clarabel"]
-    N, M, T = scenario_a.n_locales, scenario_a.n_platforms, scenario_a.horizon
+    N, M, T = scenario_a.n_locales, scenario_a.n_platforms, res.scenario.horizon
+    assert T == 250  # the fixture's shortened horizon
     assert res.states.shape == (M, T + 1, 6)
     assert res.positions.shape == (M, T + 1, 2)
     np.testing.assert_array_equal(res.states[:, 0], scenario_a.initial_states)

@@ -8,12 +8,10 @@ a file is the plan :func:`~pmht_opt.plan_pmht` (or :func:`~pmht_opt.plan_smoothe
 
 from __future__ import annotations
 
-import importlib
 import inspect
 from collections.abc import Callable
-from typing import Any
 
-from pmht_opt.exceptions import ConfigError, MissingDependencyError
+from pmht_opt.exceptions import ConfigError
 from pmht_opt.io.mission import Mission
 from pmht_opt.ordering import TourResult
 from pmht_opt.planner import PMHTConfig, ProgressCallback, plan_pmht
@@ -71,25 +69,21 @@ def _smoothed(mission: Mission, config: PMHTConfig, callback: ProgressCallback |
 
 
 def _coverage(mission: Mission, config: PMHTConfig, callback: ProgressCallback | None) -> PlanResult:
-    try:
-        module = importlib.import_module("pmht_opt.coverage")
-    except ModuleNotFoundError as err:
-        if err.name != "pmht_opt.coverage":
-            raise MissingDependencyError(
-                f"the coverage planner needs {err.name}, which is not installed."
-            ) from None
-        raise ConfigError(
-            "planner 'coverage': this installation of pmht-opt has no coverage planner yet."
-        ) from None
-    plan_coverage: Any = module.plan_coverage
+    """``plan_coverage`` on the mission; ``callback(step, best)`` after each of its stages (``best``:
+    the shortest verified plan so far, ``inf`` before any)."""
+    from pmht_opt.coverage import CoverageProgress, plan_coverage
+
     radius = (
         mission.planner.radius if mission.planner.radius is not None else mission.scenario.coverage_radius
     )
-    kwargs: dict[str, Any] = {}
-    if callback is not None and "callback" in inspect.signature(plan_coverage).parameters:
-        kwargs["callback"] = callback
-    result: PlanResult = plan_coverage(mission.scenario, radius, config, **kwargs)
-    return result
+    steps = [0]
+
+    def stage(progress: CoverageProgress) -> None:
+        steps[0] += 1
+        assert callback is not None
+        callback(steps[0], progress.best)
+
+    return plan_coverage(mission.scenario, radius, config, callback=None if callback is None else stage)
 
 
 #: Planner functions by name: ``(mission, config, callback) -> PlanResult``.
