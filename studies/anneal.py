@@ -15,20 +15,18 @@ prior (paper eq. 11) once annealing is the default; "plain" / "plain+time-prior"
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from pmht_opt.anneal import Anneal
-from pmht_opt.exceptions import ConfigError
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.scenario import paper_scenario
-from studies.options import RunOptions, positive_int
-from studies.report import EXCURSION_LIMIT, frame, summarise, write_summary
-from studies.store import Schema
-from studies.trials import Check, TrialTable, run_trials
+from studies.options import RunOptions, add_choices, check_choices, positive_int
+from studies.report import EXCURSION_LIMIT, frame, summarise
+from studies.schema import Schema
+from studies.trials import Check, TrialTable
 
 #: Configurations compared: name -> (anneal, update_time_prior). The first four are the main grid;
 #: the rest vary the schedule so the default is chosen among more than one annealed candidate.
@@ -90,17 +88,15 @@ class Options:
     def __post_init__(self) -> None:
         positive_int("--trials", self.trials)
         positive_int("--horizon", self.horizon, minimum=2)
-        for name, values, known in (("--configs", self.configs, CONFIGS), ("--kinds", self.kinds, KINDS)):
-            bad = [v for v in values if v not in known]
-            if bad or not values:
-                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
+        check_choices("--configs", self.configs, CONFIGS)
+        check_choices("--kinds", self.kinds, KINDS)
 
     @staticmethod
     def add_arguments(p: argparse.ArgumentParser) -> None:
         """The command-line options of this study."""
         p.add_argument("--trials", type=int, default=100, help="trials per scenario and configuration")
-        p.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
-        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
+        add_choices(p, "--configs", CONFIGS)
+        add_choices(p, "--kinds", KINDS, help="scenarios")
         p.add_argument("--horizon", type=int, default=HORIZON, help="time steps (default: the paper's 500)")
 
     @classmethod
@@ -166,25 +162,12 @@ def params(options: Options) -> list[dict[str, Any]]:
 
 def main(run: RunOptions, options: Options) -> list[Path]:
     """Run the study into ``run.out``: ``anneal.jsonl``, ``anneal_summary.json``, ``anneal.md``."""
-    out = run.prepare()
-    with run.executor() as ex:
-        rows = run_trials(
-            TABLE,
-            params(options),
-            out,
-            executor=ex,
-            progress=not run.quiet,
-            label="anneal",
-            resume=not run.fresh,
-        )
+    out, rows = run.run_trials(TABLE, params(options))
     table = summary(rows)
-    text = markdown(table)
-    if not run.quiet:
-        print(text)
-    return [TABLE.path(out), *write_summary(out, "anneal", table, text)]
+    return run.publish(TABLE, out, table, markdown(table))
 
 
 if __name__ == "__main__":
-    from studies.cli import main as cli_main
+    from studies.cli import run_script
 
-    sys.exit(cli_main(["anneal", "--out", str(Path(__file__).parent / "results" / "anneal"), *sys.argv[1:]]))
+    run_script("anneal", __file__)

@@ -19,10 +19,12 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
+from typing import NoReturn
 
 from pmht_opt.exceptions import MissingDependencyError, PmhtOptError
+from studies.executors import local_executor
 from studies.options import RunOptions
-from studies.trials import TrialTable, local_executor, verify
+from studies.trials import TrialTable, verify
 
 #: ``study name -> (module, one-line description)``.
 STUDIES: dict[str, tuple[str, str]] = {
@@ -61,26 +63,6 @@ def require_extras() -> None:
         )
 
 
-def _add_run_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", type=Path, default=Path("study-results"), help="directory for the results")
-    p.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1: inline)")
-    p.add_argument(
-        "--dask-scheduler",
-        default=None,
-        metavar="ADDRESS",
-        help="run the trials on the Dask cluster at ADDRESS (tcp://host:port); needs the dask extra",
-    )
-    p.add_argument("--fresh", action="store_true", help="start the results file afresh (default: resume)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar and no printed tables")
-    p.add_argument(
-        "--verify",
-        type=int,
-        default=0,
-        metavar="K",
-        help="run K stored trials again and compare them with their rows instead of running the study",
-    )
-
-
 def _module(name: str) -> ModuleType:
     return importlib.import_module(STUDIES[name][0])
 
@@ -91,7 +73,7 @@ def build_parser(prog: str = "pmht-opt study") -> argparse.ArgumentParser:
     names = parser.add_subparsers(dest="study", required=True, metavar="NAME")
     for name, (_, text) in STUDIES.items():
         sp = names.add_parser(name, help=text, description=text)
-        _add_run_options(sp)
+        RunOptions.add_arguments(sp)
         _module(name).Options.add_arguments(sp)
     return parser
 
@@ -126,14 +108,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "pmht-opt study") -> int
     ns = build_parser(prog).parse_args(argv)
     module = _module(ns.study)
     try:
-        run = RunOptions(
-            out=ns.out,
-            workers=ns.workers,
-            dask_scheduler=ns.dask_scheduler,
-            fresh=ns.fresh,
-            quiet=ns.quiet,
-            verify=ns.verify,
-        )
+        run = RunOptions.from_args(ns)
         options = module.Options.from_args(ns)
         if run.verify:
             executor = getattr(module, "verify_executor", None)
@@ -155,3 +130,10 @@ def main(argv: Sequence[str] | None = None, prog: str = "pmht-opt study") -> int
     for path in written:
         print(f"wrote: {path}")
     return 0
+
+
+def run_script(name: str, module_file: str) -> NoReturn:
+    """``python studies/MODULE.py ...``: study ``name`` into ``studies/results/NAME`` next to the module,
+    the rest of the command line as given; exits with the study's status."""
+    out = Path(module_file).parent / "results" / name
+    sys.exit(main([name, "--out", str(out), *sys.argv[1:]]))

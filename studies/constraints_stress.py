@@ -29,7 +29,6 @@ A violation counts when it exceeds the planner's stated tolerance for the backen
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -39,13 +38,12 @@ from typing import Any
 import numpy as np
 
 import pmht_opt as po
-from pmht_opt.exceptions import ConfigError
 from pmht_opt.verify import RTOL
 from studies.constraint_measures import measure
-from studies.options import RunOptions
-from studies.report import frame, write_summary
-from studies.store import Schema
-from studies.trials import Check, TrialTable, run_trials
+from studies.options import RunOptions, add_choices, check_choices
+from studies.report import frame
+from studies.schema import Schema
+from studies.trials import Check, TrialTable
 
 KINDS = ("A", "B", "C", "L")
 BACKENDS = ("clarabel", "osqp", "cvxpy")
@@ -290,23 +288,16 @@ class Options:
     cases: tuple[str, ...] = tuple(CASES)
 
     def __post_init__(self) -> None:
-        for name, values, known in (
-            ("--backends", self.backends, BACKENDS),
-            ("--kinds", self.kinds, KINDS),
-            ("--cases", self.cases, tuple(CASES)),
-        ):
-            bad = [v for v in values if v not in known]
-            if bad or not values:
-                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
+        check_choices("--backends", self.backends, BACKENDS)
+        check_choices("--kinds", self.kinds, KINDS)
+        check_choices("--cases", self.cases, CASES)
 
     @staticmethod
     def add_arguments(p: argparse.ArgumentParser) -> None:
         """The command-line options of this study."""
-        p.add_argument("--backends", nargs="+", default=list(BACKENDS), choices=list(BACKENDS))
-        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
-        p.add_argument(
-            "--cases", nargs="+", default=list(CASES), choices=list(CASES), help="constraint cases"
-        )
+        add_choices(p, "--backends", BACKENDS)
+        add_choices(p, "--kinds", KINDS, help="scenarios")
+        add_choices(p, "--cases", CASES, help="constraint cases")
 
     @classmethod
     def from_args(cls, ns: argparse.Namespace) -> Options:
@@ -326,34 +317,12 @@ def params(options: Options) -> list[dict[str, Any]]:
 
 def main(run: RunOptions, options: Options) -> list[Path]:
     """Run the study into ``run.out``: ``constraints_stress.jsonl``, the summary and its table."""
-    out = run.prepare()
-    with run.executor() as ex:
-        rows = run_trials(
-            TABLE,
-            params(options),
-            out,
-            executor=ex,
-            progress=not run.quiet,
-            label="constraints_stress",
-            resume=not run.fresh,
-        )
+    out, rows = run.run_trials(TABLE, params(options))
     table = summarise(rows)
-    text = markdown(table)
-    if not run.quiet:
-        print(text)
-    return [TABLE.path(out), *write_summary(out, "constraints_stress", table, text)]
+    return run.publish(TABLE, out, table, markdown(table))
 
 
 if __name__ == "__main__":
-    from studies.cli import main as cli_main
+    from studies.cli import run_script
 
-    sys.exit(
-        cli_main(
-            [
-                "constraints_stress",
-                "--out",
-                str(Path(__file__).parent / "results" / "constraints_stress"),
-                *sys.argv[1:],
-            ]
-        )
-    )
+    run_script("constraints_stress", __file__)

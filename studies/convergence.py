@@ -15,7 +15,6 @@ stops soonest while changing nothing a user cares about (docs/decisions.md).
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,17 +24,16 @@ import numpy as np
 
 from pmht_opt.constraints import VisitAll
 from pmht_opt.em import EMCallbacks, EMRun, IterationRecord
-from pmht_opt.exceptions import ConfigError
 from pmht_opt.geometry import point_polyline_distance
 from pmht_opt.model import POS
 from pmht_opt.ordering import order_locales
 from pmht_opt.planner import PMHTConfig
 from pmht_opt.scenario import paper_scenario
 from pmht_opt.smoothed import plan_smoothed
-from studies.options import RunOptions, positive_int
-from studies.report import frame, write_summary
-from studies.store import Schema
-from studies.trials import Check, TrialTable, run_trials
+from studies.options import RunOptions, add_choices, check_choices, positive_int
+from studies.report import frame
+from studies.schema import Schema
+from studies.trials import Check, TrialTable
 
 KINDS = ("A", "B", "C")
 CONFIGS = ("default", "visitall-0.3", "smoothed-0.3")
@@ -189,17 +187,15 @@ class Options:
 
     def __post_init__(self) -> None:
         positive_int("--trials", self.trials)
-        for name, values, known in (("--configs", self.configs, CONFIGS), ("--kinds", self.kinds, KINDS)):
-            bad = [v for v in values if v not in known]
-            if bad or not values:
-                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
+        check_choices("--configs", self.configs, CONFIGS)
+        check_choices("--kinds", self.kinds, KINDS)
 
     @staticmethod
     def add_arguments(p: argparse.ArgumentParser) -> None:
         """The command-line options of this study."""
         p.add_argument("--trials", type=int, default=100, help="trials per scenario and configuration")
-        p.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
-        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
+        add_choices(p, "--configs", CONFIGS)
+        add_choices(p, "--kinds", KINDS, help="scenarios")
 
     @classmethod
     def from_args(cls, ns: argparse.Namespace) -> Options:
@@ -219,29 +215,12 @@ def params(options: Options) -> list[dict[str, Any]]:
 
 def main(run: RunOptions, options: Options) -> list[Path]:
     """Run the study into ``run.out``: ``convergence.jsonl``, the replay summary and its table."""
-    out = run.prepare()
-    with run.executor() as ex:
-        rows = run_trials(
-            TABLE,
-            params(options),
-            out,
-            executor=ex,
-            progress=not run.quiet,
-            label="convergence",
-            resume=not run.fresh,
-        )
+    out, rows = run.run_trials(TABLE, params(options))
     table = replay(rows)
-    text = markdown(table)
-    if not run.quiet:
-        print(text)
-    return [TABLE.path(out), *write_summary(out, "convergence", table, text)]
+    return run.publish(TABLE, out, table, markdown(table))
 
 
 if __name__ == "__main__":
-    from studies.cli import main as cli_main
+    from studies.cli import run_script
 
-    sys.exit(
-        cli_main(
-            ["convergence", "--out", str(Path(__file__).parent / "results" / "convergence"), *sys.argv[1:]]
-        )
-    )
+    run_script("convergence", __file__)

@@ -24,7 +24,6 @@ the coverage-distance points with their Pareto front.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -42,10 +41,10 @@ from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario, paper_scenario
 from pmht_opt.smoothed import plan_smoothed
-from studies.options import RunOptions, positive_int
-from studies.report import frame, summarise, write_summary
-from studies.store import Schema
-from studies.trials import Check, TrialTable, run_trials
+from studies.options import RunOptions, add_choices, check_choices, positive_int
+from studies.report import frame, summarise
+from studies.schema import Schema
+from studies.trials import Check, TrialTable
 
 KINDS = ("A", "B", "C")
 RADII = (0.05, 0.1, 0.2, 0.3, 0.5)
@@ -161,10 +160,8 @@ class Options:
         positive_int("--horizon", self.horizon, minimum=2)
         if not self.radii or any(not (np.isfinite(r) and r > 0) for r in self.radii):
             raise ConfigError(f"--radii: expected positive numbers, got {list(self.radii)}.")
-        for name, values, known in (("--methods", self.methods, METHODS), ("--kinds", self.kinds, KINDS)):
-            bad = [v for v in values if v not in known]
-            if bad or not values:
-                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
+        check_choices("--methods", self.methods, METHODS)
+        check_choices("--kinds", self.kinds, KINDS)
 
     @staticmethod
     def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -178,7 +175,7 @@ class Options:
             choices=list(METHODS),
             help="planners (default: all whose ordering is installed)",
         )
-        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
+        add_choices(p, "--kinds", KINDS, help="scenarios")
         p.add_argument("--horizon", type=int, default=HORIZON, help="time steps (default: the paper's 500)")
 
     @classmethod
@@ -277,28 +274,13 @@ def main(run: RunOptions, options: Options) -> list[Path]:
     scenario."""
     from studies.coverage_figures import write_figures
 
-    out = run.prepare()
-    with run.executor() as ex:
-        rows = run_trials(
-            TABLE,
-            params(options),
-            out,
-            executor=ex,
-            progress=not run.quiet,
-            label="coverage",
-            resume=not run.fresh,
-        )
+    out, rows = run.run_trials(TABLE, params(options))
     table = summary(rows, options.radii)
-    text = markdown(table)
-    if not run.quiet:
-        print(text)
-    figures = write_figures(rows, options.radii, out)
-    return [TABLE.path(out), *write_summary(out, "coverage", table, text), *figures]
+    written = run.publish(TABLE, out, table, markdown(table))
+    return [*written, *write_figures(rows, options.radii, out)]
 
 
 if __name__ == "__main__":
-    from studies.cli import main as cli_main
+    from studies.cli import run_script
 
-    sys.exit(
-        cli_main(["coverage", "--out", str(Path(__file__).parent / "results" / "coverage"), *sys.argv[1:]])
-    )
+    run_script("coverage", __file__)

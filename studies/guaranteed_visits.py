@@ -13,7 +13,6 @@ which the constraint keeps at or below its ``keep_within`` (0.5).
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -25,10 +24,10 @@ import numpy as np
 import pmht_opt as po
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.result import excursion
-from studies.options import RunOptions, positive_int
-from studies.report import frame, write_summary
-from studies.store import Schema
-from studies.trials import Check, TrialTable, run_trials
+from studies.options import RunOptions, add_choices, check_choices, positive_int
+from studies.report import frame
+from studies.schema import Schema
+from studies.trials import Check, TrialTable
 
 KINDS = ("A", "B", "C")
 BACKENDS = ("clarabel", "osqp", "cvxpy")
@@ -152,17 +151,15 @@ class Options:
         positive_int("--trials", self.trials)
         if not self.radii or not all(r > 0 for r in self.radii):
             raise ConfigError(f"--radii: expected positive radii, got {list(self.radii)}.")
-        for name, values, known in (("--kinds", self.kinds, KINDS), ("--backends", self.backends, BACKENDS)):
-            bad = [v for v in values if v not in known]
-            if bad or not values:
-                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
+        check_choices("--kinds", self.kinds, KINDS)
+        check_choices("--backends", self.backends, BACKENDS)
 
     @staticmethod
     def add_arguments(p: argparse.ArgumentParser) -> None:
         """The command-line options of this study."""
         p.add_argument("--trials", type=int, default=100, help="seeds per scenario and radius")
         p.add_argument("--radii", nargs="+", type=float, default=[0.1, 0.3], help="visit radii")
-        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
+        add_choices(p, "--kinds", KINDS, help="scenarios")
         p.add_argument("--backends", nargs="+", default=["clarabel"], choices=list(BACKENDS))
 
     @classmethod
@@ -184,34 +181,12 @@ def params(options: Options) -> list[dict[str, Any]]:
 
 def main(run: RunOptions, options: Options) -> list[Path]:
     """Run the study into ``run.out``: ``guaranteed_visits.jsonl``, the summary and its table."""
-    out = run.prepare()
-    with run.executor() as ex:
-        rows = run_trials(
-            TABLE,
-            params(options),
-            out,
-            executor=ex,
-            progress=not run.quiet,
-            label="guaranteed_visits",
-            resume=not run.fresh,
-        )
+    out, rows = run.run_trials(TABLE, params(options))
     table = summarise(rows)
-    text = markdown(table)
-    if not run.quiet:
-        print(text)
-    return [TABLE.path(out), *write_summary(out, "guaranteed_visits", table, text)]
+    return run.publish(TABLE, out, table, markdown(table))
 
 
 if __name__ == "__main__":
-    from studies.cli import main as cli_main
+    from studies.cli import run_script
 
-    sys.exit(
-        cli_main(
-            [
-                "guaranteed_visits",
-                "--out",
-                str(Path(__file__).parent / "results" / "guaranteed_visits"),
-                *sys.argv[1:],
-            ]
-        )
-    )
+    run_script("guaranteed_visits", __file__)

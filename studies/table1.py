@@ -31,7 +31,6 @@ time includes the ordering it smooths, as in the paper.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -45,10 +44,10 @@ from pmht_opt.ordering import TourResult
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.result import PlanResult, excursion
 from pmht_opt.scenario import Scenario, paper_scenario
-from studies.options import RunOptions, positive_int
-from studies.report import EXCURSION_LIMIT, frame, summarise, write_summary
-from studies.store import Schema
-from studies.trials import Check, TrialTable, run_trials
+from studies.options import RunOptions, add_choices, check_choices, positive_int
+from studies.report import EXCURSION_LIMIT, frame, summarise
+from studies.schema import Schema
+from studies.trials import Check, TrialTable
 
 #: The coverage radius the table reports (the scenarios' default sensor footprint).
 DEFAULT_RADIUS = 0.3
@@ -325,17 +324,15 @@ class Options:
     def __post_init__(self) -> None:
         positive_int("--trials", self.trials)
         positive_int("--horizon", self.horizon, minimum=2)
-        for name, values, known in (("--methods", self.methods, METHODS), ("--kinds", self.kinds, KINDS)):
-            bad = [v for v in values if v not in known]
-            if bad or not values:
-                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
+        check_choices("--methods", self.methods, METHODS)
+        check_choices("--kinds", self.kinds, KINDS)
 
     @staticmethod
     def add_arguments(p: argparse.ArgumentParser) -> None:
         """The command-line options of this study."""
         p.add_argument("--trials", type=int, default=100, help="trials (seeds) per scenario (default 100)")
-        p.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
-        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
+        add_choices(p, "--methods", METHODS)
+        add_choices(p, "--kinds", KINDS, help="scenarios")
         p.add_argument("--horizon", type=int, default=HORIZON, help="time steps (default: the paper's 500)")
         p.add_argument("--no-figures", action="store_true", help="skip the figures")
 
@@ -361,30 +358,17 @@ def params(options: Options) -> list[dict[str, Any]]:
 def main(run: RunOptions, options: Options) -> list[Path]:
     """Run the study into ``run.out``: ``table1.jsonl`` (one row per trial), ``table1.md``,
     ``table1_summary.json`` and the figures; return the paths written."""
-    out = run.prepare()
-    with run.executor() as ex:
-        rows = run_trials(
-            TABLE,
-            params(options),
-            out,
-            executor=ex,
-            progress=not run.quiet,
-            label="table1",
-            resume=not run.fresh,
-        )
+    out, rows = run.run_trials(TABLE, params(options))
     table = summary(rows)
     n = options.trials
     header = f"Table 1 over {n} trials per scenario (seeds 0..{n - 1}); the paper: 100 trials.\n\n"
-    text = markdown(table)
-    if not run.quiet:
-        print(text)
-    written = [TABLE.path(out), *write_summary(out, "table1", table, text, header)]
+    written = run.publish(TABLE, out, table, markdown(table), header)
     if options.figures:
         written += figures(out, rows, list(options.methods))
     return written
 
 
 if __name__ == "__main__":
-    from studies.cli import main as cli_main
+    from studies.cli import run_script
 
-    sys.exit(cli_main(["table1", "--out", str(Path(__file__).parent / "results" / "table1"), *sys.argv[1:]]))
+    run_script("table1", __file__)
