@@ -14,7 +14,6 @@ prior (paper eq. 11) once annealing is the default; "plain" / "plain+time-prior"
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +22,7 @@ from typing import Any
 from pmht_opt.anneal import Anneal
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.scenario import paper_scenario
-from studies.options import RunOptions, add_choices, check_choices, positive_int
+from studies.options import Choices, Count, RunOptions, StudyOptions, option
 from studies.report import EXCURSION_LIMIT, frame, summarise
 from studies.schema import Schema
 from studies.trials import Check, TrialTable
@@ -77,33 +76,13 @@ TABLE = TrialTable(
 
 
 @dataclass(frozen=True)
-class Options:
+class Options(StudyOptions):
     """Options of ``pmht-opt study anneal``."""
 
-    trials: int = 100
-    configs: tuple[str, ...] = tuple(CONFIGS)
-    kinds: tuple[str, ...] = KINDS
-    horizon: int = HORIZON
-
-    def __post_init__(self) -> None:
-        positive_int("--trials", self.trials)
-        positive_int("--horizon", self.horizon, minimum=2)
-        check_choices("--configs", self.configs, CONFIGS)
-        check_choices("--kinds", self.kinds, KINDS)
-
-    @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        """The command-line options of this study."""
-        p.add_argument("--trials", type=int, default=100, help="trials per scenario and configuration")
-        add_choices(p, "--configs", CONFIGS)
-        add_choices(p, "--kinds", KINDS, help="scenarios")
-        p.add_argument("--horizon", type=int, default=HORIZON, help="time steps (default: the paper's 500)")
-
-    @classmethod
-    def from_args(cls, ns: argparse.Namespace) -> Options:
-        """The options from parsed arguments."""
-        return cls(int(ns.trials), tuple(ns.configs), tuple(ns.kinds), int(ns.horizon))
-
+    trials: int = option(100, Count("--trials", "trials per scenario and configuration"))
+    configs: tuple[str, ...] = option(tuple(CONFIGS), Choices("--configs", known=tuple(CONFIGS)))
+    kinds: tuple[str, ...] = option(KINDS, Choices("--kinds", "scenarios", known=KINDS))
+    horizon: int = option(HORIZON, Count("--horizon", "time steps (default: the paper's 500)", minimum=2))
 
 def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """Per (scenario, configuration): distance statistics, mean coverage, runs leaving the area."""

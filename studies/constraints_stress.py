@@ -28,7 +28,6 @@ A violation counts when it exceeds the planner's stated tolerance for the backen
 
 from __future__ import annotations
 
-import argparse
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -40,7 +39,7 @@ import numpy as np
 import pmht_opt as po
 from pmht_opt.verify import RTOL
 from studies.constraint_measures import measure
-from studies.options import RunOptions, add_choices, check_choices
+from studies.options import Choices, RunOptions, StudyOptions, option
 from studies.report import frame
 from studies.schema import Schema
 from studies.trials import Check, TrialTable
@@ -280,29 +279,12 @@ def markdown(table: Sequence[Mapping[str, Any]]) -> str:
 
 
 @dataclass(frozen=True)
-class Options:
+class Options(StudyOptions):
     """Options of ``pmht-opt study constraints_stress``."""
 
-    backends: tuple[str, ...] = BACKENDS
-    kinds: tuple[str, ...] = KINDS
-    cases: tuple[str, ...] = tuple(CASES)
-
-    def __post_init__(self) -> None:
-        check_choices("--backends", self.backends, BACKENDS)
-        check_choices("--kinds", self.kinds, KINDS)
-        check_choices("--cases", self.cases, CASES)
-
-    @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        """The command-line options of this study."""
-        add_choices(p, "--backends", BACKENDS)
-        add_choices(p, "--kinds", KINDS, help="scenarios")
-        add_choices(p, "--cases", CASES, help="constraint cases")
-
-    @classmethod
-    def from_args(cls, ns: argparse.Namespace) -> Options:
-        """The options from parsed arguments."""
-        return cls(tuple(ns.backends), tuple(ns.kinds), tuple(ns.cases))
+    backends: tuple[str, ...] = option(BACKENDS, Choices("--backends", known=BACKENDS))
+    kinds: tuple[str, ...] = option(KINDS, Choices("--kinds", "scenarios", known=KINDS))
+    cases: tuple[str, ...] = option(tuple(CASES), Choices("--cases", "constraint cases", known=tuple(CASES)))
 
 
 def params(options: Options) -> list[dict[str, Any]]:

@@ -14,7 +14,6 @@ stops soonest while changing nothing a user cares about (docs/decisions.md).
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,7 +29,7 @@ from pmht_opt.ordering import order_locales
 from pmht_opt.planner import PMHTConfig
 from pmht_opt.scenario import paper_scenario
 from pmht_opt.smoothed import plan_smoothed
-from studies.options import RunOptions, add_choices, check_choices, positive_int
+from studies.options import Choices, Count, RunOptions, StudyOptions, option
 from studies.report import frame
 from studies.schema import Schema
 from studies.trials import Check, TrialTable
@@ -178,29 +177,12 @@ def markdown(table: Sequence[Mapping[str, Any]]) -> str:
 
 
 @dataclass(frozen=True)
-class Options:
+class Options(StudyOptions):
     """Options of ``pmht-opt study convergence``."""
 
-    trials: int = 100
-    configs: tuple[str, ...] = CONFIGS
-    kinds: tuple[str, ...] = KINDS
-
-    def __post_init__(self) -> None:
-        positive_int("--trials", self.trials)
-        check_choices("--configs", self.configs, CONFIGS)
-        check_choices("--kinds", self.kinds, KINDS)
-
-    @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        """The command-line options of this study."""
-        p.add_argument("--trials", type=int, default=100, help="trials per scenario and configuration")
-        add_choices(p, "--configs", CONFIGS)
-        add_choices(p, "--kinds", KINDS, help="scenarios")
-
-    @classmethod
-    def from_args(cls, ns: argparse.Namespace) -> Options:
-        """The options from parsed arguments."""
-        return cls(int(ns.trials), tuple(ns.configs), tuple(ns.kinds))
+    trials: int = option(100, Count("--trials", "trials per scenario and configuration"))
+    configs: tuple[str, ...] = option(CONFIGS, Choices("--configs", known=CONFIGS))
+    kinds: tuple[str, ...] = option(KINDS, Choices("--kinds", "scenarios", known=KINDS))
 
 
 def params(options: Options) -> list[dict[str, Any]]:

@@ -23,7 +23,6 @@ the coverage-distance points with their Pareto front.
 
 from __future__ import annotations
 
-import argparse
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -41,7 +40,7 @@ from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario, paper_scenario
 from pmht_opt.smoothed import plan_smoothed
-from studies.options import RunOptions, add_choices, check_choices, positive_int
+from studies.options import Choices, Count, Positives, RunOptions, StudyOptions, option
 from studies.report import frame, summarise
 from studies.schema import Schema
 from studies.trials import Check, TrialTable
@@ -146,45 +145,22 @@ TABLE = TrialTable(
 
 
 @dataclass(frozen=True)
-class Options:
+class Options(StudyOptions):
     """Options of ``pmht-opt study coverage``."""
 
-    trials: int = 100
-    radii: tuple[float, ...] = RADII
-    methods: tuple[str, ...] = METHODS
-    kinds: tuple[str, ...] = KINDS
-    horizon: int = HORIZON
-
-    def __post_init__(self) -> None:
-        positive_int("--trials", self.trials)
-        positive_int("--horizon", self.horizon, minimum=2)
-        if not self.radii or any(not (np.isfinite(r) and r > 0) for r in self.radii):
-            raise ConfigError(f"--radii: expected positive numbers, got {list(self.radii)}.")
-        check_choices("--methods", self.methods, METHODS)
-        check_choices("--kinds", self.kinds, KINDS)
-
-    @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        """The command-line options of this study."""
-        p.add_argument("--trials", type=int, default=100, help="seeds 0..TRIALS-1 per scenario")
-        p.add_argument("--radii", nargs="+", type=float, default=list(RADII), help="coverage radii")
-        p.add_argument(
+    trials: int = option(100, Count("--trials", "seeds 0..TRIALS-1 per scenario"))
+    radii: tuple[float, ...] = option(RADII, Positives("--radii", "coverage radii"))
+    methods: tuple[str, ...] = option(
+        METHODS,
+        Choices(
             "--methods",
-            nargs="+",
-            default=None,
-            choices=list(METHODS),
-            help="planners (default: all whose ordering is installed)",
-        )
-        add_choices(p, "--kinds", KINDS, help="scenarios")
-        p.add_argument("--horizon", type=int, default=HORIZON, help="time steps (default: the paper's 500)")
-
-    @classmethod
-    def from_args(cls, ns: argparse.Namespace) -> Options:
-        """The options from parsed arguments."""
-        methods = tuple(ns.methods) if ns.methods else default_methods()
-        return cls(
-            int(ns.trials), tuple(float(r) for r in ns.radii), methods, tuple(ns.kinds), int(ns.horizon)
-        )
+            "planners (default: all whose ordering is installed)",
+            known=METHODS,
+            installed=default_methods,
+        ),
+    )
+    kinds: tuple[str, ...] = option(KINDS, Choices("--kinds", "scenarios", known=KINDS))
+    horizon: int = option(HORIZON, Count("--horizon", "time steps (default: the paper's 500)", minimum=2))
 
 
 def params(options: Options) -> list[dict[str, Any]]:

@@ -12,7 +12,6 @@ which the constraint keeps at or below its ``keep_within`` (0.5).
 
 from __future__ import annotations
 
-import argparse
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -22,9 +21,8 @@ from typing import Any
 import numpy as np
 
 import pmht_opt as po
-from pmht_opt.exceptions import ConfigError
 from pmht_opt.result import excursion
-from studies.options import RunOptions, add_choices, check_choices, positive_int
+from studies.options import Choices, Count, Positives, RunOptions, StudyOptions, option
 from studies.report import frame
 from studies.schema import Schema
 from studies.trials import Check, TrialTable
@@ -139,33 +137,13 @@ def markdown(table: Sequence[Mapping[str, Any]]) -> str:
 
 
 @dataclass(frozen=True)
-class Options:
+class Options(StudyOptions):
     """Options of ``pmht-opt study guaranteed_visits``."""
 
-    trials: int = 100
-    radii: tuple[float, ...] = (0.1, 0.3)
-    kinds: tuple[str, ...] = KINDS
-    backends: tuple[str, ...] = ("clarabel",)
-
-    def __post_init__(self) -> None:
-        positive_int("--trials", self.trials)
-        if not self.radii or not all(r > 0 for r in self.radii):
-            raise ConfigError(f"--radii: expected positive radii, got {list(self.radii)}.")
-        check_choices("--kinds", self.kinds, KINDS)
-        check_choices("--backends", self.backends, BACKENDS)
-
-    @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        """The command-line options of this study."""
-        p.add_argument("--trials", type=int, default=100, help="seeds per scenario and radius")
-        p.add_argument("--radii", nargs="+", type=float, default=[0.1, 0.3], help="visit radii")
-        add_choices(p, "--kinds", KINDS, help="scenarios")
-        p.add_argument("--backends", nargs="+", default=["clarabel"], choices=list(BACKENDS))
-
-    @classmethod
-    def from_args(cls, ns: argparse.Namespace) -> Options:
-        """The options from parsed arguments."""
-        return cls(int(ns.trials), tuple(ns.radii), tuple(ns.kinds), tuple(ns.backends))
+    trials: int = option(100, Count("--trials", "seeds per scenario and radius"))
+    radii: tuple[float, ...] = option((0.1, 0.3), Positives("--radii", "visit radii"))
+    kinds: tuple[str, ...] = option(KINDS, Choices("--kinds", "scenarios", known=KINDS))
+    backends: tuple[str, ...] = option(("clarabel",), Choices("--backends", known=BACKENDS))
 
 
 def params(options: Options) -> list[dict[str, Any]]:

@@ -57,6 +57,16 @@ def summarise(values: Iterable[Any]) -> dict[str, float]:
     return {"mean": sum(vals) / len(vals), "median": median(vals), "max": max(vals), "n": len(vals)}
 
 
+def markdown_row(cells: Iterable[object]) -> str:
+    """One line of a markdown table: the cells as ``str`` shows them, between bars."""
+    return "| " + " | ".join(str(c) for c in cells) + " |"
+
+
+def markdown_table(header: str, rows: Iterable[str]) -> str:
+    """A markdown table: its ``header`` line (``| a | b |``), the rule under it, then the ``rows``."""
+    return "\n".join([header, "|" + "---|" * (header.count("|") - 1), *rows])
+
+
 def write_text(path: Path, text: str) -> Path:
     """Write ``text`` to ``path``, creating missing folders; return the path written."""
     path = Path(path)

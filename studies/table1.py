@@ -30,7 +30,6 @@ time includes the ordering it smooths, as in the paper.
 
 from __future__ import annotations
 
-import argparse
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -44,7 +43,7 @@ from pmht_opt.ordering import TourResult
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.result import PlanResult, excursion
 from pmht_opt.scenario import Scenario, paper_scenario
-from studies.options import RunOptions, add_choices, check_choices, positive_int
+from studies.options import Choices, Count, RunOptions, StudyOptions, Without, option
 from studies.report import EXCURSION_LIMIT, frame, summarise
 from studies.schema import Schema
 from studies.trials import Check, TrialTable
@@ -312,36 +311,14 @@ def _save(fig: Any, path: Path, plt: Any) -> Path:
 
 
 @dataclass(frozen=True)
-class Options:
+class Options(StudyOptions):
     """Options of ``pmht-opt study table1``."""
 
-    trials: int = 100
-    methods: tuple[str, ...] = tuple(METHODS)
-    kinds: tuple[str, ...] = KINDS
-    horizon: int = HORIZON
-    figures: bool = True
-
-    def __post_init__(self) -> None:
-        positive_int("--trials", self.trials)
-        positive_int("--horizon", self.horizon, minimum=2)
-        check_choices("--methods", self.methods, METHODS)
-        check_choices("--kinds", self.kinds, KINDS)
-
-    @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        """The command-line options of this study."""
-        p.add_argument("--trials", type=int, default=100, help="trials (seeds) per scenario (default 100)")
-        add_choices(p, "--methods", METHODS)
-        add_choices(p, "--kinds", KINDS, help="scenarios")
-        p.add_argument("--horizon", type=int, default=HORIZON, help="time steps (default: the paper's 500)")
-        p.add_argument("--no-figures", action="store_true", help="skip the figures")
-
-    @classmethod
-    def from_args(cls, ns: argparse.Namespace) -> Options:
-        """The options from parsed arguments."""
-        return cls(
-            int(ns.trials), tuple(ns.methods), tuple(ns.kinds), int(ns.horizon), figures=not ns.no_figures
-        )
+    trials: int = option(100, Count("--trials", "trials (seeds) per scenario (default 100)"))
+    methods: tuple[str, ...] = option(tuple(METHODS), Choices("--methods", known=tuple(METHODS)))
+    kinds: tuple[str, ...] = option(KINDS, Choices("--kinds", "scenarios", known=KINDS))
+    horizon: int = option(HORIZON, Count("--horizon", "time steps (default: the paper's 500)", minimum=2))
+    figures: bool = option(True, Without("--no-figures", "skip the figures"))
 
 
 def params(options: Options) -> list[dict[str, Any]]:
