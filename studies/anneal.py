@@ -16,14 +16,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from pmht_opt.anneal import Anneal
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.scenario import paper_scenario
-from studies.options import Choices, Count, RunOptions, StudyOptions, option
-from studies.report import EXCURSION_LIMIT, frame, summarise
+from studies.options import Choices, Count, StudyOptions, option
+from studies.report import EXCURSION_LIMIT, frame, markdown_table, summarise
 from studies.schema import Schema
 from studies.trials import Check, TrialTable
 
@@ -84,6 +83,17 @@ class Options(StudyOptions):
     kinds: tuple[str, ...] = option(KINDS, Choices("--kinds", "scenarios", known=KINDS))
     horizon: int = option(HORIZON, Count("--horizon", "time steps (default: the paper's 500)", minimum=2))
 
+
+def params(options: Options) -> list[dict[str, Any]]:
+    """The trials of a run, configuration-major."""
+    return [
+        {"kind": k, "seed": s, "config": c, "horizon": options.horizon}
+        for c in options.configs
+        for k in options.kinds
+        for s in range(options.trials)
+    ]
+
+
 def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """Per (scenario, configuration): distance statistics, mean coverage, runs leaving the area."""
     df = frame(rows)
@@ -115,35 +125,16 @@ def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
 
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The summary as a markdown table."""
-    lines = [
+    return markdown_table(
         "| scenario | configuration | trials | mean distance | median | max | mean coverage (0.3) "
         "| runs leaving area by > 1 | median time (s) |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for s in table:
-        lines.append(
+        (
             f"| {s['scenario']} | {s['config']} | {s['trials']} | {s['mean_distance']:.1f} "
             f"| {s['median_distance']:.1f} | {s['max_distance']:.1f} | {s['mean_coverage']:.3f} "
             f"| {s['left_area']} | {s['median_time']:.2f} |"
-        )
-    return "\n".join(lines)
-
-
-def params(options: Options) -> list[dict[str, Any]]:
-    """The trials of a run, configuration-major."""
-    return [
-        {"kind": k, "seed": s, "config": c, "horizon": options.horizon}
-        for c in options.configs
-        for k in options.kinds
-        for s in range(options.trials)
-    ]
-
-
-def main(run: RunOptions, options: Options) -> list[Path]:
-    """Run the study into ``run.out``: ``anneal.jsonl``, ``anneal_summary.json``, ``anneal.md``."""
-    out, rows = run.run_trials(TABLE, params(options))
-    table = summary(rows)
-    return run.publish(TABLE, out, table, markdown(table))
+            for s in table
+        ),
+    )
 
 
 if __name__ == "__main__":

@@ -1,10 +1,12 @@
 """The one parser of the studies: ``pmht-opt study NAME ...`` and ``python -m studies NAME ...``.
 
 Each study module provides a frozen ``Options`` dataclass (with ``add_arguments`` and ``from_args``),
-its results table ``TABLE`` and ``main(run, options) -> list of paths written``. This module adds the
-options every study shares (:class:`~studies.options.RunOptions`), turns the command line into the two
-typed option objects, and either runs the study or, with ``--verify K``, runs K stored trials again and
-compares them with their rows.
+its results table ``TABLE`` and either ``main(run, options) -> list of paths written`` or, for a study that
+is one table of trials and its summary, ``params(options)`` (the trials), ``summary(rows)`` and
+``markdown(summary)`` (:func:`run_study` runs those). This module adds the options every study shares
+(:class:`~studies.options.RunOptions`), turns the command line into the two typed option objects, and
+either runs the study or, with ``--verify K``, runs K stored trials again and compares them with their
+rows.
 
 Exit status: 0 done (or verified), 1 a verification mismatch, 2 a bad input or a failed study (the
 project's own error, one line), 130 interrupted (Ctrl-C; finished trials are kept).
@@ -19,7 +21,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from pmht_opt.exceptions import MissingDependencyError, PmhtOptError
 from studies.executors import local_executor
@@ -98,6 +100,21 @@ def run_verify(table: TrialTable, run: RunOptions, executor: cf.Executor | None 
     return 0
 
 
+def run_study(module: ModuleType, run: RunOptions, options: Any) -> list[Path]:
+    """Run the study of ``module`` with its ``options``; the paths written.
+
+    A module with a ``main`` runs it. Any other is one table of trials: its trials run into ``run.out``
+    (``TABLE.name`` + ``.jsonl``), then its summary goes to ``<name>_summary.json`` and, as markdown, to
+    ``<name>.md``.
+    """
+    if hasattr(module, "main"):
+        written: list[Path] = module.main(run, options)
+        return written
+    out, rows = run.run_trials(module.TABLE, module.params(options))
+    summary = module.summary(rows)
+    return run.publish(module.TABLE, out, summary, module.markdown(summary))
+
+
 def main(argv: Sequence[str] | None = None, prog: str = "pmht-opt study") -> int:
     """Parse ``argv``, run the study (or verify it) and print the paths written; return the exit status."""
     try:
@@ -117,7 +134,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "pmht-opt study") -> int
                 return run_verify(module.TABLE, run, ex)
             finally:
                 ex.shutdown(wait=False, cancel_futures=True)
-        written: list[Path] = module.main(run, options)
+        written = run_study(module, run, options)
     except PmhtOptError as err:
         print(f"{prog}: error: {err}", file=sys.stderr)
         return 2

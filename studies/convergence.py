@@ -16,7 +16,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -29,8 +28,8 @@ from pmht_opt.ordering import order_locales
 from pmht_opt.planner import PMHTConfig
 from pmht_opt.scenario import paper_scenario
 from pmht_opt.smoothed import plan_smoothed
-from studies.options import Choices, Count, RunOptions, StudyOptions, option
-from studies.report import frame
+from studies.options import Choices, Count, StudyOptions, option
+from studies.report import frame, markdown_row, markdown_table
 from studies.schema import Schema
 from studies.trials import Check, TrialTable
 
@@ -116,7 +115,7 @@ def stop_iteration(row: Mapping[str, Any], path_rtol: float, stable: int) -> int
     return len(row["path_change"])
 
 
-def replay(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """Per (scenario, configuration, candidate rule): iterations saved and what changes against 100."""
     df = frame(rows)
     df = df[df["error"] == ""]
@@ -154,26 +153,25 @@ def replay(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
 
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The replay as a markdown table."""
-    lines = [
+    return markdown_table(
         "| scenario | configuration | path_rtol | stable | mean iterations | max | mean rel. distance change "
         "| max | max coverage change | trials with coverage changed |",
-        "|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for s in table:
-        cells = (
-            s["scenario"],
-            s["config"],
-            f"{s['path_rtol']:g}",
-            s["stable"],
-            f"{s['mean_iterations']:.1f}",
-            s["max_iterations"],
-            f"{s['mean_rel_distance_change']:.2e}",
-            f"{s['max_rel_distance_change']:.2e}",
-            f"{s['max_coverage_change']:.3f}",
-            s["trials_coverage_changed"],
-        )
-        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
-    return "\n".join(lines)
+        (
+            markdown_row(
+                s["scenario"],
+                s["config"],
+                f"{s['path_rtol']:g}",
+                s["stable"],
+                f"{s['mean_iterations']:.1f}",
+                s["max_iterations"],
+                f"{s['mean_rel_distance_change']:.2e}",
+                f"{s['max_rel_distance_change']:.2e}",
+                f"{s['max_coverage_change']:.3f}",
+                s["trials_coverage_changed"],
+            )
+            for s in table
+        ),
+    )
 
 
 @dataclass(frozen=True)
@@ -193,13 +191,6 @@ def params(options: Options) -> list[dict[str, Any]]:
         for k in options.kinds
         for s in range(options.trials)
     ]
-
-
-def main(run: RunOptions, options: Options) -> list[Path]:
-    """Run the study into ``run.out``: ``convergence.jsonl``, the replay summary and its table."""
-    out, rows = run.run_trials(TABLE, params(options))
-    table = replay(rows)
-    return run.publish(TABLE, out, table, markdown(table))
 
 
 if __name__ == "__main__":

@@ -41,9 +41,9 @@ from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario, paper_scenario
 from pmht_opt.smoothed import plan_smoothed
 from studies.options import Choices, Count, Positives, RunOptions, StudyOptions, option
-from studies.report import frame, summarise
+from studies.report import frame, markdown_table, summarise
 from studies.schema import Schema
-from studies.trials import Check, TrialTable
+from studies.trials import TIMES, TrialTable
 
 KINDS = ("A", "B", "C")
 RADII = (0.05, 0.1, 0.2, 0.3, 0.5)
@@ -137,10 +137,7 @@ TABLE = TrialTable(
             "wall": "float",
         },
     ),
-    checks={
-        "cpu": Check("skip", reason="CPU time differs from run to run"),
-        "wall": Check("skip", reason="wall-clock time differs from run to run"),
-    },
+    checks=TIMES,
 )
 
 
@@ -230,19 +227,20 @@ def _ratios(out: list[dict[str, Any]], kind: str, radius: float, base: Mapping[s
 
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The summary as a markdown table."""
-    lines = [
+    return markdown_table(
         "| scenario | radius | planner | trials (failed) | mean distance | median | mean coverage "
         "| median time (s) | coverage / best baseline |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for s in table:
-        ratio = f"{s['ratio']:.3f} ({s['baseline']})" if "ratio" in s else ""
-        lines.append(
+        (
             f"| {s['scenario']} | {s['radius']:g} | {s['method']} | {s['trials']} ({s['failed']}) "
             f"| {s['mean_distance']:.2f} | {s['median_distance']:.2f} | {s['mean_coverage']:.3f} "
-            f"| {s['median_time']:.2f} | {ratio} |"
-        )
-    return "\n".join(lines)
+            f"| {s['median_time']:.2f} | {_ratio(s)} |"
+            for s in table
+        ),
+    )
+
+
+def _ratio(s: Mapping[str, Any]) -> str:
+    return f"{s['ratio']:.3f} ({s['baseline']})" if "ratio" in s else ""
 
 
 def main(run: RunOptions, options: Options) -> list[Path]:

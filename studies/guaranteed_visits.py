@@ -15,17 +15,16 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 import pmht_opt as po
 from pmht_opt.result import excursion
-from studies.options import Choices, Count, Positives, RunOptions, StudyOptions, option
-from studies.report import frame
+from studies.options import Choices, Count, Positives, StudyOptions, option
+from studies.report import frame, markdown_row, markdown_table
 from studies.schema import Schema
-from studies.trials import Check, TrialTable
+from studies.trials import ITERATES, OUTCOME, TrialTable
 
 KINDS = ("A", "B", "C")
 BACKENDS = ("clarabel", "osqp", "cvxpy")
@@ -72,18 +71,11 @@ TABLE = TrialTable(
             "seconds": "float",
         },
     ),
-    checks={
-        "seconds": Check("skip", reason="wall time"),
-        "distance": Check("close", rtol=1e-6, atol=1e-9, reason="last digits of the solvers' iterates"),
-        "extra_excursion": Check(
-            "close", rtol=1e-6, atol=1e-9, reason="last digits of the solvers' iterates"
-        ),
-        "message": Check("skip", reason="figures in messages carry the solvers' last digits"),
-    },
+    checks={**OUTCOME, "distance": ITERATES, "extra_excursion": ITERATES},
 )
 
 
-def summarise(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """Per scenario, radius and backend: plans, errors, full coverage, excursions, time."""
     df = frame(rows)
     df = df[df["error"] == ""]
@@ -112,28 +104,27 @@ def summarise(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
 
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The summary as a markdown table."""
-    lines = [
+    return markdown_table(
         "| scenario | radius | backend | trials | errors | full coverage | > 0.5 out | > 1 out | max out "
         "| mean distance | mean s | median s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for s in table:
-        cells = (
-            s["scenario"],
-            f"{s['radius']:g}",
-            s["backend"],
-            s["trials"],
-            f"{s['errors']}" + (f" ({s['error_classes']})" if s["error_classes"] else ""),
-            s["full_coverage"],
-            s["over_half_unit_out"],
-            s["over_one_unit_out"],
-            f"{s['max_extra_excursion']:.3f}",
-            f"{s['mean_distance']:.1f}",
-            f"{s['mean_seconds']:.2f}",
-            f"{s['median_seconds']:.2f}",
-        )
-        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
-    return "\n".join(lines)
+        (
+            markdown_row(
+                s["scenario"],
+                f"{s['radius']:g}",
+                s["backend"],
+                s["trials"],
+                f"{s['errors']}" + (f" ({s['error_classes']})" if s["error_classes"] else ""),
+                s["full_coverage"],
+                s["over_half_unit_out"],
+                s["over_one_unit_out"],
+                f"{s['max_extra_excursion']:.3f}",
+                f"{s['mean_distance']:.1f}",
+                f"{s['mean_seconds']:.2f}",
+                f"{s['median_seconds']:.2f}",
+            )
+            for s in table
+        ),
+    )
 
 
 @dataclass(frozen=True)
@@ -155,13 +146,6 @@ def params(options: Options) -> list[dict[str, Any]]:
         for k in options.kinds
         for s in range(options.trials)
     ]
-
-
-def main(run: RunOptions, options: Options) -> list[Path]:
-    """Run the study into ``run.out``: ``guaranteed_visits.jsonl``, the summary and its table."""
-    out, rows = run.run_trials(TABLE, params(options))
-    table = summarise(rows)
-    return run.publish(TABLE, out, table, markdown(table))
 
 
 if __name__ == "__main__":

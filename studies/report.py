@@ -57,7 +57,7 @@ def summarise(values: Iterable[Any]) -> dict[str, float]:
     return {"mean": sum(vals) / len(vals), "median": median(vals), "max": max(vals), "n": len(vals)}
 
 
-def markdown_row(cells: Iterable[object]) -> str:
+def markdown_row(*cells: object) -> str:
     """One line of a markdown table: the cells as ``str`` shows them, between bars."""
     return "| " + " | ".join(str(c) for c in cells) + " |"
 

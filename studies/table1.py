@@ -44,9 +44,9 @@ from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.result import PlanResult, excursion
 from pmht_opt.scenario import Scenario, paper_scenario
 from studies.options import Choices, Count, RunOptions, StudyOptions, Without, option
-from studies.report import EXCURSION_LIMIT, frame, summarise
+from studies.report import EXCURSION_LIMIT, frame, markdown_table, summarise
 from studies.schema import Schema
-from studies.trials import Check, TrialTable
+from studies.trials import TIMES, TrialTable
 
 #: The coverage radius the table reports (the scenarios' default sensor footprint).
 DEFAULT_RADIUS = 0.3
@@ -156,10 +156,7 @@ TABLE = TrialTable(
             "paths_20": "list?",
         },
     ),
-    checks={
-        "cpu": Check("skip", reason="CPU time differs from run to run"),
-        "wall": Check("skip", reason="wall-clock time differs from run to run"),
-    },
+    checks=TIMES,
 )
 
 
@@ -210,21 +207,22 @@ def _num(x: float, fmt: str) -> str:
 
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """Table 1 side by side with the paper's numbers, plus the columns the paper lacked."""
-    lines = [
+    return markdown_table(
         "| scenario | method | trials | distance: mean (sd) | median | max | paper | CPU s: mean | paper "
         f"| coverage at {DEFAULT_RADIUS} | runs leaving area by > 1 |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for s in table:
-        failed = f" ({s['failed']} failed)" if s["failed"] else ""
-        lines.append(
-            f"| {s['scenario']} | {METHODS[s['method']]} | {s['trials']}{failed} "
+        (
+            f"| {s['scenario']} | {METHODS[s['method']]} | {s['trials']}{_failed(s)} "
             f"| {_num(s['mean_distance'], '.1f')} ({_num(s['sd_distance'], '.1f')}) "
             f"| {_num(s['median_distance'], '.1f')} | {_num(s['max_distance'], '.1f')} "
             f"| {_num(s['paper_distance'], '.1f')} | {_num(s['mean_cpu'], '.2f')} "
             f"| {_num(s['paper_cpu'], '.1f')} | {_num(s['mean_coverage'], '.3f')} | {s['left_area']} |"
-        )
-    return "\n".join(lines)
+            for s in table
+        ),
+    )
+
+
+def _failed(s: Mapping[str, Any]) -> str:
+    return f" ({s['failed']} failed)" if s["failed"] else ""
 
 
 # ------------------------------------------------------------------ figures

@@ -81,6 +81,22 @@ class Check:
         return _agree(stored, fresh, self.rtol if self.kind == "close" else 0.0, self.atol)
 
 
+#: How ``--verify`` treats the CPU and wall times of a trial (columns ``cpu`` and ``wall``): measurements of
+#: the machine at the time, never the same twice.
+TIMES: Mapping[str, Check] = {
+    "cpu": Check("skip", reason="CPU time differs from run to run"),
+    "wall": Check("skip", reason="wall-clock time differs from run to run"),
+}
+#: A number computed from a solver's iterates: another run may differ in its last digits.
+ITERATES = Check("close", rtol=1e-6, atol=1e-9, reason="last digits of the solvers' iterates")
+#: How ``--verify`` treats a trial that records its outcome, with the error's ``message`` (whose figures
+#: come from the solvers' iterates) and the ``seconds`` it took.
+OUTCOME: Mapping[str, Check] = {
+    "seconds": Check("skip", reason="wall time"),
+    "message": Check("skip", reason="figures in messages carry the solvers' last digits"),
+}
+
+
 def _agree(a: Any, b: Any, rtol: float, atol: float) -> bool:
     if isinstance(a, list) and isinstance(b, list):
         return len(a) == len(b) and all(_agree(x, y, rtol, atol) for x, y in zip(a, b, strict=True))
