@@ -21,10 +21,10 @@ from pmht_opt.plotting import (
     COVERAGE_RTOL,
     MISSED_STYLE,
     VIEW_MARGIN,
-    _pyplot,
     draw_constraint,
     miss_distances,
     platform_colour,
+    pyplot,
 )
 from pmht_opt.scenario import Scenario
 
@@ -81,7 +81,7 @@ def animate_iterations(
     """
     if not snapshots:
         raise ConfigError("snapshots: no iterations to animate; plan with PMHTConfig(snapshots=...).")
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.animation import FuncAnimation, PillowWriter
     from matplotlib.patches import Rectangle
 

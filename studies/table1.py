@@ -240,9 +240,9 @@ def _paths(
 def figures(out_dir: Path, rows: Sequence[Mapping[str, Any]], methods: Sequence[str]) -> list[Path]:
     """Figure 1 (PMHT paths at iterations 5, 20 and the last), Figures 2-4 (every method on the
     seed-0 trial of A, B, C) and Figure 5 (histogram of locales per platform), from the trials' rows."""
-    from pmht_opt.plotting import _pyplot, draw_paths
+    from pmht_opt.plotting import draw_paths, pyplot
 
-    plt = _pyplot()
+    plt = pyplot()
     written = []
     sc = paper_scenario("A", seed=FIGURE_SEED)
     panels = [
