@@ -73,7 +73,8 @@ def rts_smoother(
     weight
         Non-negative measurement weights ``(B, T)``: the covariance at step ``t`` is ``R / weight``.
     """
-    F, Q, H, R, x0, P0, y, weight = _checked(F, Q, H, R, x0, P0, y, weight)
+    F, Q, H, R = _model(F, Q, H, R)
+    x0, P0, y, weight = _batch(H, x0, P0, y, weight)
     T = weight.shape[1]
     # A weight whose reciprocal overflows (below ~1e-308) is a measurement of infinite variance, whose
     # gain is exactly zero: treat it as no measurement instead of dividing by it.
@@ -99,18 +100,8 @@ def rts_smoother(
     return _smooth(f, F)
 
 
-def _checked(
-    F: np.ndarray,
-    Q: np.ndarray,
-    H: np.ndarray,
-    R: np.ndarray,
-    x0: np.ndarray,
-    P0: np.ndarray,
-    y: np.ndarray,
-    weight: np.ndarray,
-) -> tuple[np.ndarray, ...]:
-    """The inputs of :func:`rts_smoother` as float arrays of consistent shapes, finite, with
-    non-negative weights; :class:`ProblemError` naming the first one that is not."""
+def _model(F: np.ndarray, Q: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``F, Q`` ``(n, n)`` and ``H (p, n)``, ``R (p, p)`` as finite float arrays, or :class:`ProblemError`."""
     F = np.asarray(F, dtype=float)
     n = F.shape[0]
     F = dense("F", F, (n, n))
@@ -119,6 +110,16 @@ def _checked(
     p = H.shape[0]
     H = dense("H", H, (p, n))
     R = dense("R", R, (p, p))
+    return F, Q, H, R
+
+
+def _batch(
+    H: np.ndarray, x0: np.ndarray, P0: np.ndarray, y: np.ndarray, weight: np.ndarray
+) -> tuple[np.ndarray, ...]:
+    """The batch's starts, measurements and weights as float arrays whose shapes fit each other and the
+    measurement matrix ``H``; :class:`ProblemError` naming the first that does not (or is not finite,
+    or a negative weight)."""
+    p, n = H.shape
     x0 = np.asarray(x0, dtype=float)
     if x0.ndim != 3:
         raise ProblemError(f"x0 must have shape (B, n, K), got {x0.shape}.")
@@ -131,7 +132,7 @@ def _checked(
     y = dense("y", y, (B, T, p, K))
     if np.any(weight < 0):
         raise ProblemError("weight has negative entries.")
-    return F, Q, H, R, x0, P0, y, weight
+    return x0, P0, y, weight
 
 
 def _filter_scalar(
