@@ -93,10 +93,7 @@ def rts_smoother(
     f.Pf[0] = P0
     # Time-major copies so each step reads contiguous memory.
     yt = np.ascontiguousarray(np.moveaxis(y, 1, 0))
-    if H.shape[0] == 1:
-        _filter_scalar(f, F, Q, H[0], float(R[0, 0]) * scale, yt, present.T)
-    else:
-        _filter(f, F, Q, H, R, scale, yt, present.T)
+    _forward(f, F, Q, H, R, scale, yt, present.T)
     return _smooth(f, F)
 
 
@@ -135,35 +132,7 @@ def _batch(
     return x0, P0, y, weight
 
 
-def _filter_scalar(
-    f: _Filtered,
-    F: np.ndarray,
-    Q: np.ndarray,
-    h: np.ndarray,
-    var: np.ndarray,
-    yt: np.ndarray,
-    active: np.ndarray,
-) -> None:
-    """The forward pass for scalar measurements ``h' x`` of variance ``var`` ``(T, B)``: no matrix
-    inverse, and ``P - K (P h)'`` keeps ``P`` positive semidefinite."""
-    m, P = f.mf[0], f.Pf[0]
-    FT = F.T
-    for t in range(1, f.mf.shape[0]):
-        m = F @ m
-        P = F @ P @ FT + Q
-        f.mp[t] = m
-        f.Pp[t] = P
-        PH = P @ h  # (B, n)
-        gain = PH / (PH @ h + var[t - 1])[:, None]
-        gain *= active[t - 1][:, None]
-        innov = yt[t - 1, :, 0, :] - h @ m  # (B, K)
-        m = m + gain[:, :, None] * innov[:, None, :]
-        P = P - gain[:, :, None] * PH[:, None, :]
-        f.mf[t] = m
-        f.Pf[t] = P
-
-
-def _filter(
+def _forward(
     f: _Filtered,
     F: np.ndarray,
     Q: np.ndarray,
@@ -173,9 +142,28 @@ def _filter(
     yt: np.ndarray,
     active: np.ndarray,
 ) -> None:
-    """The forward pass for vector measurements ``H x`` of covariance ``R * scale`` (``scale (T, B)``)."""
+    """The forward pass into ``f`` from its moments at ``t = 0``: measurements ``yt (T, B, p, K)`` of
+    covariance ``R * scale`` (``scale (T, B)``) where ``active (T, B)``."""
     m, P = f.mf[0], f.Pf[0]
     FT = F.T
+    if H.shape[0] == 1:
+        # Scalar measurements: no matrix inverse, and P - K (PH)' keeps P positive semidefinite.
+        h = H[0]
+        var = float(R[0, 0]) * scale
+        for t in range(1, f.mf.shape[0]):
+            m = F @ m
+            P = F @ P @ FT + Q
+            f.mp[t] = m
+            f.Pp[t] = P
+            PH = P @ h  # (B, n)
+            gain = PH / (PH @ h + var[t - 1])[:, None]
+            gain *= active[t - 1][:, None]
+            innov = yt[t - 1, :, 0, :] - h @ m  # (B, K)
+            m = m + gain[:, :, None] * innov[:, None, :]
+            P = P - gain[:, :, None] * PH[:, None, :]
+            f.mf[t] = m
+            f.Pf[t] = P
+        return
     eye = np.eye(F.shape[0])
     HT = H.T
     for t in range(1, f.mf.shape[0]):
