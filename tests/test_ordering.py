@@ -27,9 +27,9 @@ from pmht_opt.ordering import (
     route_costs,
     solve_ga_tsp,
     solve_ortools,
-    solve_pyvrp,
     tour_distance,
 )
+from pmht_opt.ordering.pyvrp_ import solve_pyvrp
 from pmht_opt.scenario import Scenario, paper_scenario
 
 #: Agreement of a solver's optimum with the exhaustive one (floating point sums in different orders).
