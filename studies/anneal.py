@@ -22,7 +22,7 @@ from pmht_opt.anneal import Anneal
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.scenario import paper_scenario
 from studies.options import Choices, Count, StudyOptions, option
-from studies.report import EXCURSION_LIMIT, frame, markdown_table, summarise
+from studies.report import EXCURSION_LIMIT, Columns, frame, markdown_table, summarise
 from studies.schema import Schema
 from studies.trials import Check, TrialTable
 
@@ -123,18 +123,23 @@ def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+#: The summary's markdown table.
+COLUMNS: Columns = (
+    ("scenario", lambda s: s["scenario"]),
+    ("configuration", lambda s: s["config"]),
+    ("trials", lambda s: s["trials"]),
+    ("mean distance", lambda s: f"{s['mean_distance']:.1f}"),
+    ("median", lambda s: f"{s['median_distance']:.1f}"),
+    ("max", lambda s: f"{s['max_distance']:.1f}"),
+    ("mean coverage (0.3)", lambda s: f"{s['mean_coverage']:.3f}"),
+    ("runs leaving area by > 1", lambda s: s["left_area"]),
+    ("median time (s)", lambda s: f"{s['median_time']:.2f}"),
+)
+
+
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The summary as a markdown table."""
-    return markdown_table(
-        "| scenario | configuration | trials | mean distance | median | max | mean coverage (0.3) "
-        "| runs leaving area by > 1 | median time (s) |",
-        (
-            f"| {s['scenario']} | {s['config']} | {s['trials']} | {s['mean_distance']:.1f} "
-            f"| {s['median_distance']:.1f} | {s['max_distance']:.1f} | {s['mean_coverage']:.3f} "
-            f"| {s['left_area']} | {s['median_time']:.2f} |"
-            for s in table
-        ),
-    )
+    return markdown_table(COLUMNS, table)
 
 
 if __name__ == "__main__":

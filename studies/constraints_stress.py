@@ -39,7 +39,7 @@ import pmht_opt as po
 from pmht_opt.verify import RTOL
 from studies.constraint_measures import measure
 from studies.options import Choices, StudyOptions, option
-from studies.report import frame, markdown_row, markdown_table
+from studies.report import Columns, frame, markdown_table
 from studies.schema import Schema
 from studies.trials import ITERATES, OUTCOME, Check, TrialTable
 
@@ -251,28 +251,25 @@ def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+#: The summary's markdown table.
+COLUMNS: Columns = (
+    ("backend", lambda s: s["backend"]),
+    ("expected", lambda s: s["expected"]),
+    ("plans", lambda s: s["plans"]),
+    ("solved", lambda s: s["solved"]),
+    ("infeasible named", lambda s: s["infeasible_named"]),
+    ("failed", lambda s: s["failed"]),
+    ("violations past tolerance", lambda s: s["violations_past_tolerance"]),
+    ("max rel. violation", lambda s: f"{s['max_violation']:.2e}"),
+    ("median s", lambda s: f"{s['median_seconds']:.1f}"),
+    ("max s", lambda s: f"{s['max_seconds']:.1f}"),
+    ("failures", lambda s: s["failures"] or "-"),
+)
+
+
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The summary as a markdown table."""
-    return markdown_table(
-        "| backend | expected | plans | solved | infeasible named | failed | violations past tolerance "
-        "| max rel. violation | median s | max s | failures |",
-        (
-            markdown_row(
-                s["backend"],
-                s["expected"],
-                s["plans"],
-                s["solved"],
-                s["infeasible_named"],
-                s["failed"],
-                s["violations_past_tolerance"],
-                f"{s['max_violation']:.2e}",
-                f"{s['median_seconds']:.1f}",
-                f"{s['max_seconds']:.1f}",
-                s["failures"] or "-",
-            )
-            for s in table
-        ),
-    )
+    return markdown_table(COLUMNS, table)
 
 
 @dataclass(frozen=True)

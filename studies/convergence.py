@@ -29,7 +29,7 @@ from pmht_opt.planner import PMHTConfig
 from pmht_opt.scenario import paper_scenario
 from pmht_opt.smoothed import plan_smoothed
 from studies.options import Choices, Count, StudyOptions, option
-from studies.report import frame, markdown_row, markdown_table
+from studies.report import Columns, frame, markdown_table
 from studies.schema import Schema
 from studies.trials import Check, TrialTable
 
@@ -151,27 +151,24 @@ def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+#: The replay's markdown table.
+COLUMNS: Columns = (
+    ("scenario", lambda s: s["scenario"]),
+    ("configuration", lambda s: s["config"]),
+    ("path_rtol", lambda s: f"{s['path_rtol']:g}"),
+    ("stable", lambda s: s["stable"]),
+    ("mean iterations", lambda s: f"{s['mean_iterations']:.1f}"),
+    ("max", lambda s: s["max_iterations"]),
+    ("mean rel. distance change", lambda s: f"{s['mean_rel_distance_change']:.2e}"),
+    ("max", lambda s: f"{s['max_rel_distance_change']:.2e}"),
+    ("max coverage change", lambda s: f"{s['max_coverage_change']:.3f}"),
+    ("trials with coverage changed", lambda s: s["trials_coverage_changed"]),
+)
+
+
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The replay as a markdown table."""
-    return markdown_table(
-        "| scenario | configuration | path_rtol | stable | mean iterations | max | mean rel. distance change "
-        "| max | max coverage change | trials with coverage changed |",
-        (
-            markdown_row(
-                s["scenario"],
-                s["config"],
-                f"{s['path_rtol']:g}",
-                s["stable"],
-                f"{s['mean_iterations']:.1f}",
-                s["max_iterations"],
-                f"{s['mean_rel_distance_change']:.2e}",
-                f"{s['max_rel_distance_change']:.2e}",
-                f"{s['max_coverage_change']:.3f}",
-                s["trials_coverage_changed"],
-            )
-            for s in table
-        ),
-    )
+    return markdown_table(COLUMNS, table)
 
 
 @dataclass(frozen=True)

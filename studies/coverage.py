@@ -41,7 +41,7 @@ from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario, paper_scenario
 from pmht_opt.smoothed import plan_smoothed
 from studies.options import Choices, Count, Positives, RunOptions, StudyOptions, option
-from studies.report import frame, markdown_table, summarise
+from studies.report import Columns, frame, markdown_table, summarise
 from studies.schema import Schema
 from studies.trials import TIMES, TrialTable
 
@@ -225,22 +225,23 @@ def _ratios(out: list[dict[str, Any]], kind: str, radius: float, base: Mapping[s
             entry["baseline"] = min(base, key=lambda k: base[k] if np.isfinite(base[k]) else np.inf)
 
 
+#: The summary's markdown table.
+COLUMNS: Columns = (
+    ("scenario", lambda s: s["scenario"]),
+    ("radius", lambda s: f"{s['radius']:g}"),
+    ("planner", lambda s: s["method"]),
+    ("trials (failed)", lambda s: f"{s['trials']} ({s['failed']})"),
+    ("mean distance", lambda s: f"{s['mean_distance']:.2f}"),
+    ("median", lambda s: f"{s['median_distance']:.2f}"),
+    ("mean coverage", lambda s: f"{s['mean_coverage']:.3f}"),
+    ("median time (s)", lambda s: f"{s['median_time']:.2f}"),
+    ("coverage / best baseline", lambda s: f"{s['ratio']:.3f} ({s['baseline']})" if "ratio" in s else ""),
+)
+
+
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The summary as a markdown table."""
-    return markdown_table(
-        "| scenario | radius | planner | trials (failed) | mean distance | median | mean coverage "
-        "| median time (s) | coverage / best baseline |",
-        (
-            f"| {s['scenario']} | {s['radius']:g} | {s['method']} | {s['trials']} ({s['failed']}) "
-            f"| {s['mean_distance']:.2f} | {s['median_distance']:.2f} | {s['mean_coverage']:.3f} "
-            f"| {s['median_time']:.2f} | {_ratio(s)} |"
-            for s in table
-        ),
-    )
-
-
-def _ratio(s: Mapping[str, Any]) -> str:
-    return f"{s['ratio']:.3f} ({s['baseline']})" if "ratio" in s else ""
+    return markdown_table(COLUMNS, table)
 
 
 def main(run: RunOptions, options: Options) -> list[Path]:

@@ -22,7 +22,7 @@ import numpy as np
 import pmht_opt as po
 from pmht_opt.result import excursion
 from studies.options import Choices, Count, Positives, StudyOptions, option
-from studies.report import frame, markdown_row, markdown_table
+from studies.report import Columns, frame, markdown_table
 from studies.schema import Schema
 from studies.trials import ITERATES, OUTCOME, TrialTable
 
@@ -102,29 +102,26 @@ def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+#: The summary's markdown table.
+COLUMNS: Columns = (
+    ("scenario", lambda s: s["scenario"]),
+    ("radius", lambda s: f"{s['radius']:g}"),
+    ("backend", lambda s: s["backend"]),
+    ("trials", lambda s: s["trials"]),
+    ("errors", lambda s: f"{s['errors']}" + (f" ({s['error_classes']})" if s["error_classes"] else "")),
+    ("full coverage", lambda s: s["full_coverage"]),
+    ("> 0.5 out", lambda s: s["over_half_unit_out"]),
+    ("> 1 out", lambda s: s["over_one_unit_out"]),
+    ("max out", lambda s: f"{s['max_extra_excursion']:.3f}"),
+    ("mean distance", lambda s: f"{s['mean_distance']:.1f}"),
+    ("mean s", lambda s: f"{s['mean_seconds']:.2f}"),
+    ("median s", lambda s: f"{s['median_seconds']:.2f}"),
+)
+
+
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The summary as a markdown table."""
-    return markdown_table(
-        "| scenario | radius | backend | trials | errors | full coverage | > 0.5 out | > 1 out | max out "
-        "| mean distance | mean s | median s |",
-        (
-            markdown_row(
-                s["scenario"],
-                f"{s['radius']:g}",
-                s["backend"],
-                s["trials"],
-                f"{s['errors']}" + (f" ({s['error_classes']})" if s["error_classes"] else ""),
-                s["full_coverage"],
-                s["over_half_unit_out"],
-                s["over_one_unit_out"],
-                f"{s['max_extra_excursion']:.3f}",
-                f"{s['mean_distance']:.1f}",
-                f"{s['mean_seconds']:.2f}",
-                f"{s['median_seconds']:.2f}",
-            )
-            for s in table
-        ),
-    )
+    return markdown_table(COLUMNS, table)
 
 
 @dataclass(frozen=True)

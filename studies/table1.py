@@ -44,7 +44,7 @@ from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.result import PlanResult, excursion
 from pmht_opt.scenario import Scenario, paper_scenario
 from studies.options import Choices, Count, RunOptions, StudyOptions, Without, option
-from studies.report import EXCURSION_LIMIT, frame, markdown_table, summarise
+from studies.report import EXCURSION_LIMIT, Columns, frame, markdown_table, summarise
 from studies.schema import Schema
 from studies.trials import TIMES, TrialTable
 
@@ -205,24 +205,25 @@ def _num(x: float, fmt: str) -> str:
     return "—" if not np.isfinite(x) else format(x, fmt)
 
 
+#: Table 1 side by side with the paper's numbers, plus the columns the paper lacked.
+COLUMNS: Columns = (
+    ("scenario", lambda s: s["scenario"]),
+    ("method", lambda s: METHODS[s["method"]]),
+    ("trials", lambda s: f"{s['trials']}" + (f" ({s['failed']} failed)" if s["failed"] else "")),
+    ("distance: mean (sd)", lambda s: f"{_num(s['mean_distance'], '.1f')} ({_num(s['sd_distance'], '.1f')})"),
+    ("median", lambda s: _num(s["median_distance"], ".1f")),
+    ("max", lambda s: _num(s["max_distance"], ".1f")),
+    ("paper", lambda s: _num(s["paper_distance"], ".1f")),
+    ("CPU s: mean", lambda s: _num(s["mean_cpu"], ".2f")),
+    ("paper", lambda s: _num(s["paper_cpu"], ".1f")),
+    (f"coverage at {DEFAULT_RADIUS}", lambda s: _num(s["mean_coverage"], ".3f")),
+    ("runs leaving area by > 1", lambda s: s["left_area"]),
+)
+
+
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """Table 1 side by side with the paper's numbers, plus the columns the paper lacked."""
-    return markdown_table(
-        "| scenario | method | trials | distance: mean (sd) | median | max | paper | CPU s: mean | paper "
-        f"| coverage at {DEFAULT_RADIUS} | runs leaving area by > 1 |",
-        (
-            f"| {s['scenario']} | {METHODS[s['method']]} | {s['trials']}{_failed(s)} "
-            f"| {_num(s['mean_distance'], '.1f')} ({_num(s['sd_distance'], '.1f')}) "
-            f"| {_num(s['median_distance'], '.1f')} | {_num(s['max_distance'], '.1f')} "
-            f"| {_num(s['paper_distance'], '.1f')} | {_num(s['mean_cpu'], '.2f')} "
-            f"| {_num(s['paper_cpu'], '.1f')} | {_num(s['mean_coverage'], '.3f')} | {s['left_area']} |"
-            for s in table
-        ),
-    )
-
-
-def _failed(s: Mapping[str, Any]) -> str:
-    return f" ({s['failed']} failed)" if s["failed"] else ""
+    return markdown_table(COLUMNS, table)
 
 
 # ------------------------------------------------------------------ figures
