@@ -23,7 +23,6 @@ from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.scenario import paper_scenario
 from studies.options import Choices, Count, StudyOptions, option
 from studies.report import EXCURSION_LIMIT, Columns, frame, markdown_table, summarise
-from studies.schema import Schema
 from studies.trials import Check, TrialTable
 
 #: Configurations compared: name -> (anneal, update_time_prior). The first four are the main grid;
@@ -57,20 +56,11 @@ def trial(kind: str, seed: int, config: str, horizon: int) -> dict[str, Any]:
     }
 
 
-TABLE = TrialTable(
-    name="anneal",
-    fn=trial,
-    schema=Schema(
-        params={"kind": "str", "seed": "int", "config": "str", "horizon": "int"},
-        values={
-            "distance": "float",
-            "coverage": "float",
-            "excursion": "float",
-            "left_area": "bool",
-            "time": "float",
-        },
-    ),
-    checks={"time": Check("skip", reason="wall-clock time differs from run to run")},
+TABLE = TrialTable.of(
+    "anneal",
+    trial,
+    {"distance": "float", "coverage": "float", "excursion": "float", "left_area": "bool", "time": "float"},
+    {"time": Check("skip", reason="wall-clock time differs from run to run")},
 )
 
 

@@ -21,29 +21,37 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
-from typing import Any, NoReturn
+from typing import Any, NamedTuple, NoReturn
 
 from pmht_opt.exceptions import MissingDependencyError, PmhtOptError
 from studies.executors import local_executor
 from studies.options import RunOptions
 from studies.trials import TrialTable, verify
 
-#: ``study name -> (module, one-line description)``.
-STUDIES: dict[str, tuple[str, str]] = {
-    "table1": ("studies.table1", "the paper's Table 1 and Figures 1-5, with what the paper lacked"),
-    "solvers": ("studies.compare_solvers", "M-step backends against the kalman reference: time, gaps"),
-    "scaling": ("studies.scaling", "plan time and peak memory as locales, horizon and platforms grow"),
-    "anneal": ("studies.anneal", "plain against annealed EM with both time-prior settings"),
-    "convergence": ("studies.convergence", "when the EM can stop: stopping rules replayed on full runs"),
-    "guaranteed_visits": (
+
+class Study(NamedTuple):
+    """A study the command runs: its module, and what it studies in one line (its ``--help``)."""
+
+    module: str
+    text: str
+
+
+#: The studies by their name on the command line.
+STUDIES: dict[str, Study] = {
+    "table1": Study("studies.table1", "the paper's Table 1 and Figures 1-5, with what the paper lacked"),
+    "solvers": Study("studies.compare_solvers", "M-step backends against the kalman reference: time, gaps"),
+    "scaling": Study("studies.scaling", "plan time and peak memory as locales, horizon and platforms grow"),
+    "anneal": Study("studies.anneal", "plain against annealed EM with both time-prior settings"),
+    "convergence": Study("studies.convergence", "when the EM can stop: stopping rules replayed on full runs"),
+    "guaranteed_visits": Study(
         "studies.guaranteed_visits",
         "VisitAll on the paper's scenarios: failures, coverage, excursions beyond the starts, time",
     ),
-    "constraints_stress": (
+    "constraints_stress": Study(
         "studies.constraints_stress",
         "constraints from generous to infeasible on every backend: solved, named, verified",
     ),
-    "coverage": ("studies.coverage", "distance at equal coverage over sensor radii, Pareto fronts"),
+    "coverage": Study("studies.coverage", "distance at equal coverage over sensor radii, Pareto fronts"),
 }
 
 
@@ -66,15 +74,15 @@ def require_extras() -> None:
 
 
 def _module(name: str) -> ModuleType:
-    return importlib.import_module(STUDIES[name][0])
+    return importlib.import_module(STUDIES[name].module)
 
 
 def build_parser(prog: str = "pmht-opt study") -> argparse.ArgumentParser:
     """The parser of every study's options."""
     parser = argparse.ArgumentParser(prog=prog, description="Run one of the studies into a directory.")
     names = parser.add_subparsers(dest="study", required=True, metavar="NAME")
-    for name, (_, text) in STUDIES.items():
-        sp = names.add_parser(name, help=text, description=text)
+    for name, study in STUDIES.items():
+        sp = names.add_parser(name, help=study.text, description=study.text)
         RunOptions.add_arguments(sp)
         _module(name).Options.add_arguments(sp)
     return parser

@@ -40,8 +40,7 @@ from pmht_opt.verify import RTOL
 from studies.constraint_measures import measure
 from studies.options import Choices, StudyOptions, option
 from studies.report import Columns, frame, markdown_table
-from studies.schema import Schema
-from studies.trials import ITERATES, OUTCOME, Check, TrialTable
+from studies.trials import ERROR_COLUMNS, ITERATES, OUTCOME_CHECKS, Check, TrialTable
 
 KINDS = ("A", "B", "C", "L")
 BACKENDS = ("clarabel", "osqp", "cvxpy")
@@ -196,27 +195,26 @@ def trial(kind: str, case: str, backend: str) -> dict[str, Any]:
     return row
 
 
-TABLE = TrialTable(
-    name="constraints_stress",
-    fn=trial,
-    schema=Schema(
-        params={"kind": "str", "case": "str", "backend": "str"},
-        values={
-            "outcome": "str",
-            "expected": "str",
-            "raised": "str?",
-            "message": "str?",
-            "violation": "float?",
-            "worst": "str?",
-            "tolerance": "float",
-            "distance": "float?",
-            "coverage": "float?",
-            "excursion": "float?",
-            "seconds": "float",
-        },
-    ),
-    checks={
-        **OUTCOME,
+#: What a trial records: its outcome against the expected one, the independent measurements of a plan
+#: (the worst constraint, its relative violation, the tolerance it is held to) and the time it took.
+RESULTS = {
+    "outcome": "str",
+    "expected": "str",
+    **ERROR_COLUMNS,
+    "violation": "float?",
+    "worst": "str?",
+    "tolerance": "float",
+    "distance": "float?",
+    "coverage": "float?",
+    "excursion": "float?",
+    "seconds": "float",
+}
+TABLE = TrialTable.of(
+    "constraints_stress",
+    trial,
+    RESULTS,
+    {
+        **OUTCOME_CHECKS,
         "violation": Check("close", rtol=1e-3, atol=1e-9, reason="last digits of the solvers' iterates"),
         "distance": ITERATES,
         "excursion": ITERATES,

@@ -30,7 +30,6 @@ from pmht_opt.scenario import paper_scenario
 from pmht_opt.smoothed import plan_smoothed
 from studies.options import Choices, Count, StudyOptions, option
 from studies.report import Columns, frame, markdown_table
-from studies.schema import Schema
 from studies.trials import Check, TrialTable
 
 KINDS = ("A", "B", "C")
@@ -83,23 +82,21 @@ def trial(kind: str, seed: int, config: str) -> dict[str, Any]:
     return {**signals, "scale": 10.0}
 
 
-TABLE = TrialTable(
-    name="convergence",
-    fn=trial,
-    schema=Schema(
-        params={"kind": "str", "seed": "int", "config": "str"},
-        values={
-            "path_change": "list",
-            "changed": "list",
-            "settled": "list",
-            "distance": "list",
-            "coverage": "list",
-            "scale": "float",
-        },
-    ),
-    checks={
-        "path_change": Check("close", rtol=1e-6, atol=1e-9, reason="last-digit differences of the solver")
-    },
+#: What a trial records: each signal after every iteration, and the length its path changes are judged
+#: against.
+RESULTS = {
+    "path_change": "list",
+    "changed": "list",
+    "settled": "list",
+    "distance": "list",
+    "coverage": "list",
+    "scale": "float",
+}
+TABLE = TrialTable.of(
+    "convergence",
+    trial,
+    RESULTS,
+    {"path_change": Check("close", rtol=1e-6, atol=1e-9, reason="last-digit differences of the solver")},
 )
 
 

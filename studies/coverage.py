@@ -42,8 +42,7 @@ from pmht_opt.scenario import Scenario, paper_scenario
 from pmht_opt.smoothed import plan_smoothed
 from studies.options import Choices, Count, Positives, RunOptions, StudyOptions, option
 from studies.report import Columns, frame, markdown_table, summarise
-from studies.schema import Schema
-from studies.trials import TIMES, TrialTable
+from studies.trials import TIME_CHECKS, TIME_COLUMNS, TrialTable
 
 KINDS = ("A", "B", "C")
 RADII = (0.05, 0.1, 0.2, 0.3, 0.5)
@@ -120,25 +119,18 @@ def trial(kind: str, seed: int, method: str, radius: float, horizon: int) -> dic
     }
 
 
-TABLE = TrialTable(
-    name="coverage",
-    fn=trial,
-    schema=Schema(
-        params={"kind": "str", "seed": "int", "method": "str", "radius": "float", "horizon": "int"},
-        values={
-            "distance": "float",
-            "coverage": "float?",
-            "coverage_at": "dict",
-            "max_miss": "float",
-            "max_acceleration": "float",
-            "energy": "float",
-            "excursion": "float",
-            "cpu": "float",
-            "wall": "float",
-        },
-    ),
-    checks=TIMES,
-)
+#: What a trial records: the plan's measures, its coverage at every radius of the study and its times.
+RESULTS = {
+    "distance": "float",
+    "coverage": "float?",
+    "coverage_at": "dict",
+    "max_miss": "float",
+    "max_acceleration": "float",
+    "energy": "float",
+    "excursion": "float",
+    **TIME_COLUMNS,
+}
+TABLE = TrialTable.of("coverage", trial, RESULTS, TIME_CHECKS)
 
 
 @dataclass(frozen=True)

@@ -23,8 +23,7 @@ import pmht_opt as po
 from pmht_opt.result import excursion
 from studies.options import Choices, Count, Positives, StudyOptions, option
 from studies.report import Columns, frame, markdown_table
-from studies.schema import Schema
-from studies.trials import ITERATES, OUTCOME, TrialTable
+from studies.trials import ERROR_COLUMNS, ITERATES, OUTCOME_CHECKS, TrialTable
 
 KINDS = ("A", "B", "C")
 BACKENDS = ("clarabel", "osqp", "cvxpy")
@@ -55,23 +54,18 @@ def trial(kind: str, seed: int, radius: float, backend: str) -> dict[str, Any]:
     return row
 
 
-TABLE = TrialTable(
-    name="guaranteed_visits",
-    fn=trial,
-    schema=Schema(
-        params={"kind": "str", "seed": "int", "radius": "float", "backend": "str"},
-        values={
-            "outcome": "str",
-            "raised": "str?",
-            "message": "str?",
-            "coverage": "float?",
-            "distance": "float?",
-            "extra_excursion": "float?",
-            "fallbacks": "int?",
-            "seconds": "float",
-        },
-    ),
-    checks={**OUTCOME, "distance": ITERATES, "extra_excursion": ITERATES},
+#: What a trial records: its outcome (a plan, or the error), the plan's measures and the time it took.
+RESULTS = {
+    "outcome": "str",
+    **ERROR_COLUMNS,
+    "coverage": "float?",
+    "distance": "float?",
+    "extra_excursion": "float?",
+    "fallbacks": "int?",
+    "seconds": "float",
+}
+TABLE = TrialTable.of(
+    "guaranteed_visits", trial, RESULTS, {**OUTCOME_CHECKS, "distance": ITERATES, "extra_excursion": ITERATES}
 )
 
 

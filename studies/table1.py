@@ -45,8 +45,7 @@ from pmht_opt.result import PlanResult, excursion
 from pmht_opt.scenario import Scenario, paper_scenario
 from studies.options import Choices, Count, RunOptions, StudyOptions, Without, option
 from studies.report import EXCURSION_LIMIT, Columns, frame, markdown_table, summarise
-from studies.schema import Schema
-from studies.trials import TIMES, TrialTable
+from studies.trials import TIME_CHECKS, TIME_COLUMNS, TrialTable
 
 #: The coverage radius the table reports (the scenarios' default sensor footprint).
 DEFAULT_RADIUS = 0.3
@@ -139,25 +138,18 @@ def trial(kind: str, seed: int, method: str, horizon: int) -> dict[str, Any]:
     return row
 
 
-TABLE = TrialTable(
-    name="table1",
-    fn=trial,
-    schema=Schema(
-        params={"kind": "str", "seed": "int", "method": "str", "horizon": "int"},
-        values={
-            "distance": "float",
-            "coverage": "float",
-            "excursion": "float",
-            "locales_per_platform": "list",
-            "cpu": "float",
-            "wall": "float",
-            "paths": "list?",
-            "paths_5": "list?",
-            "paths_20": "list?",
-        },
-    ),
-    checks=TIMES,
-)
+#: What a trial records: the plan's (or tour's) measures, its times and, for the figures' seed, its paths.
+RESULTS = {
+    "distance": "float",
+    "coverage": "float",
+    "excursion": "float",
+    "locales_per_platform": "list",
+    **TIME_COLUMNS,
+    "paths": "list?",
+    "paths_5": "list?",
+    "paths_20": "list?",
+}
+TABLE = TrialTable.of("table1", trial, RESULTS, TIME_CHECKS)
 
 
 def _rounded(line: np.ndarray) -> list[list[float]]:

@@ -26,9 +26,11 @@ randomness only from the seeds in their parameters.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import inspect
 import math
 import queue
 import sys
+import typing
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -81,17 +83,20 @@ class Check:
         return _agree(stored, fresh, self.rtol if self.kind == "close" else 0.0, self.atol)
 
 
-#: How ``--verify`` treats the CPU and wall times of a trial (columns ``cpu`` and ``wall``): measurements of
-#: the machine at the time, never the same twice.
-TIMES: Mapping[str, Check] = {
+#: The CPU and wall seconds of a trial that times its method, and how ``--verify`` treats them: as
+#: measurements of the machine at the time, never the same twice.
+TIME_COLUMNS = {"cpu": "float", "wall": "float"}
+TIME_CHECKS: Mapping[str, Check] = {
     "cpu": Check("skip", reason="CPU time differs from run to run"),
     "wall": Check("skip", reason="wall-clock time differs from run to run"),
 }
 #: A number computed from a solver's iterates: another run may differ in its last digits.
 ITERATES = Check("close", rtol=1e-6, atol=1e-9, reason="last digits of the solvers' iterates")
-#: How ``--verify`` treats a trial that records its outcome, with the error's ``message`` (whose figures
-#: come from the solvers' iterates) and the ``seconds`` it took.
-OUTCOME: Mapping[str, Check] = {
+#: The project's error a trial may end in (its class and message; ``None`` for a trial that planned)...
+ERROR_COLUMNS = {"raised": "str?", "message": "str?"}
+#: ... and how ``--verify`` treats the error's message (whose figures come from the solvers' iterates)
+#: and the ``seconds`` such a trial took.
+OUTCOME_CHECKS: Mapping[str, Check] = {
     "seconds": Check("skip", reason="wall time"),
     "message": Check("skip", reason="figures in messages carry the solvers' last digits"),
 }
@@ -125,6 +130,30 @@ class TrialTable:
     def path(self, out_dir: Path) -> Path:
         """The results file in ``out_dir``."""
         return Path(out_dir) / f"{self.name}.jsonl"
+
+    @classmethod
+    def of(
+        cls, name: str, fn: TrialFn, values: Mapping[str, str], checks: Mapping[str, Check] | None = None
+    ) -> TrialTable:
+        """The table of trial function ``fn``, whose parameters are the schema's: their names and types
+        are stated once, in its signature (``int``, ``float``, ``str`` or ``bool``)."""
+        return cls(name, fn, Schema(params=signature_columns(fn), values=values), dict(checks or {}))
+
+
+#: The column type of each type a trial's parameter may be annotated with.
+_PARAM_TYPES: Mapping[object, str] = {int: "int", float: "float", str: "str", bool: "bool"}
+
+
+def signature_columns(fn: TrialFn) -> dict[str, str]:
+    """``fn``'s parameters as schema columns, in order; :class:`ConfigError` for one of another type."""
+    hints = typing.get_type_hints(fn)
+    out = {}
+    for name in inspect.signature(fn).parameters:
+        kind = _PARAM_TYPES.get(hints.get(name))
+        if kind is None:
+            raise ConfigError(f"trial parameter {name!r}: annotate it as int, float, str or bool.")
+        out[name] = kind
+    return out
 
 
 @dataclass(frozen=True)
