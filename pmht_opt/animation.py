@@ -21,10 +21,10 @@ from pmht_opt.plotting import (
     COVERAGE_RTOL,
     MISSED_STYLE,
     VIEW_MARGIN,
-    _pyplot,
     draw_constraint,
     miss_distances,
     platform_colour,
+    pyplot,
 )
 from pmht_opt.scenario import Scenario
 
@@ -81,44 +81,18 @@ def animate_iterations(
     """
     if not snapshots:
         raise ConfigError("snapshots: no iterations to animate; plan with PMHTConfig(snapshots=...).")
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.animation import FuncAnimation, PillowWriter
-    from matplotlib.patches import Rectangle
 
     frames = pick_frames(list(snapshots))
     last = frames[-1]
     hold = [last] * (2 * fps)
     fig, ax = plt.subplots(figsize=(5.6, 5.6))
     try:
-        for con in constraints:
-            draw_constraint(con, ax)
-        bounds = scenario.bounds
-        assert bounds is not None
-        xmin, xmax, ymin, ymax = bounds
-        ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, **AREA_STYLE))
-        pad = VIEW_MARGIN * max(xmax - xmin, ymax - ymin, 1e-12)
-        ax.set_xlim(xmin - pad, xmax + pad)
-        ax.set_ylim(ymin - pad, ymax + pad)
-        ax.set_aspect("equal", adjustable="box")
-        ax.set_xlabel(labels[0])
-        ax.set_ylabel(labels[1])
-        z = scenario.locales
-        ax.plot(z[:, 0], z[:, 1], "x", color="k", ms=5, mew=1.0, ls="none", label="locale")
-        (missed,) = ax.plot(
-            [], [], zorder=2, label=f"missed (> {scenario.coverage_radius:g})", **MISSED_STYLE
-        )
         M = next(iter(snapshots.values())).shape[0]
-        paths = [
-            ax.plot([], [], "-", color=platform_colour(m), lw=1.4, label=f"platform {m}")[0] for m in range(M)
-        ]
-        ends = [ax.plot([], [], "o", color=platform_colour(m), ms=6, mec="k", mew=0.5)[0] for m in range(M)]
-        s = scenario.start_positions
-        for m in range(M):
-            ax.plot(*s[m], marker="s", ms=8, mfc="white", mec=platform_colour(m), mew=2.0, zorder=4)
-        ax.legend(
-            loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=min(M + 2, 4), fontsize=7, frameon=False
-        )
+        paths, ends, missed = _stage(ax, scenario, M, constraints, labels)
         heading = ax.set_title("", fontsize=9)
+        z = scenario.locales
         rho = scenario.coverage_radius
 
         def draw(k: int) -> list[Any]:
@@ -142,6 +116,39 @@ def animate_iterations(
     finally:
         plt.close(fig)
     return out
+
+
+def _stage(
+    ax: Any, scenario: Scenario, M: int, constraints: Sequence[Any], labels: tuple[str, str]
+) -> tuple[list[Any], list[Any], Any]:
+    """What stays still on ``ax``: constraints, the area (the view fixed on it), locales, starts and the
+    legend; and the artists every frame moves: each platform's path and end, and the missed locales."""
+    from matplotlib.patches import Rectangle
+
+    for con in constraints:
+        draw_constraint(con, ax)
+    bounds = scenario.bounds
+    assert bounds is not None
+    xmin, xmax, ymin, ymax = bounds
+    ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, **AREA_STYLE))
+    pad = VIEW_MARGIN * max(xmax - xmin, ymax - ymin, 1e-12)
+    ax.set_xlim(xmin - pad, xmax + pad)
+    ax.set_ylim(ymin - pad, ymax + pad)
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_xlabel(labels[0])
+    ax.set_ylabel(labels[1])
+    z = scenario.locales
+    ax.plot(z[:, 0], z[:, 1], "x", color="k", ms=5, mew=1.0, ls="none", label="locale")
+    (missed,) = ax.plot([], [], zorder=2, label=f"missed (> {scenario.coverage_radius:g})", **MISSED_STYLE)
+    paths = [
+        ax.plot([], [], "-", color=platform_colour(m), lw=1.4, label=f"platform {m}")[0] for m in range(M)
+    ]
+    ends = [ax.plot([], [], "o", color=platform_colour(m), ms=6, mec="k", mew=0.5)[0] for m in range(M)]
+    s = scenario.start_positions
+    for m in range(M):
+        ax.plot(*s[m], marker="s", ms=8, mfc="white", mec=platform_colour(m), mew=2.0, zorder=4)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=min(M + 2, 4), fontsize=7, frameon=False)
+    return paths, ends, missed
 
 
 def animate_plan(result: Any, path: str | Path, unit: str = "", **options: Any) -> Path:

@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from pmht_opt.gating import GATE_MAX_FRACTION, estep_gated, gate_margin
-from pmht_opt.likelihood import EStepInputs, dense_blocks
+from pmht_opt.likelihood import EStepInputs
 
 #: Weights below this are left out of an :class:`EStepSummary` (each locale's weights sum to one).
 SUMMARY_FLOOR = 1e-12
@@ -232,8 +232,9 @@ def estep(
     M, T, _ = positions.shape
     N = z.shape[0]
     margin = gate_margin(gate, T, M)
+    inputs = EStepInputs(z, positions, log_time_prior, log_platform_prior, r)
     if margin is not None:
-        gated = estep_gated(z, positions, log_time_prior, log_platform_prior, r, margin)
+        gated = estep_gated(inputs, margin)
         if gated is not None:
             w, W_, WZ_, lse_, inputs = gated
             return EStepResult(weights=w, W=W_, WZ=WZ_, log_normaliser=lse_, n_platforms=M, inputs=inputs)
@@ -242,7 +243,7 @@ def estep(
     lse = np.empty(N)
     W = np.zeros(TM)
     WZ = np.zeros((2, TM))
-    for i, j, block_lse in dense_blocks(z, positions, log_time_prior, log_platform_prior, r, w):
+    for i, j, block_lse in inputs.dense_blocks(w):
         block = w[i:j]
         lse[i:j] = block_lse
         W += block.sum(axis=0)

@@ -77,16 +77,11 @@ def _ball_lists(tree: cKDTree, points: np.ndarray, radii: np.ndarray) -> tuple[n
     return counts, flat
 
 
-def estep_gated(
-    z: np.ndarray,
-    positions: np.ndarray,
-    log_tau: np.ndarray | None,
-    log_k: np.ndarray | None,
-    r: float,
-    margin: float,
-) -> GatedWeights | None:
+def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
     """The gated E-step (module docstring), or ``None`` where the dense one should run instead."""
-    found = _candidates(z, positions, log_tau, log_k, r, margin)
+    z, positions, r = inputs.locales, inputs.positions, inputs.r
+    log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
+    found = _candidates(inputs, margin)
     if found is None or found[0].size == 0:
         return None
     M, T, _ = positions.shape
@@ -122,25 +117,18 @@ def estep_gated(
     np.exp(a, out=a)
     s = np.bincount(row, weights=a, minlength=N)
     a *= (1.0 / s)[row]
-    return _assemble(
-        z, row, t * M + plat, a, best + np.log(s), T, M, EStepInputs(z, positions, log_tau, log_k, r)
-    )
+    return _assemble(z, row, t * M + plat, a, best + np.log(s), T, M, inputs)
 
 
-def _candidates(
-    z: np.ndarray,
-    positions: np.ndarray,
-    log_tau: np.ndarray | None,
-    log_k: np.ndarray | None,
-    r: float,
-    margin: float,
-) -> Candidates | None:
+def _candidates(inputs: EStepInputs, margin: float) -> Candidates | None:
     """The triples worth evaluating, or ``None`` where the gate would keep too many to pay.
 
     Candidates come from whichever is smaller: the radius queries, or the support of the priors (all
     triples with a non-zero prior, when the priors confine each locale to a few times and platforms,
     as in :func:`~pmht_opt.plan_smoothed`).
     """
+    z, positions, r = inputs.locales, inputs.positions, inputs.r
+    log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
     M, T, _ = positions.shape
     N = z.shape[0]
     scale = max(float(np.max(np.abs(positions))), float(np.max(np.abs(z))))
@@ -157,7 +145,7 @@ def _candidates(
     n_times = np.isfinite(log_tau).sum(axis=1) if log_tau is not None else np.full(N, T)
     n_plats = np.isfinite(log_k).sum(axis=1) if log_k is not None else np.full(N, M)
     support = float(np.sum(n_times * n_plats))
-    tree = _TreeCandidates(z, positions, log_tau, log_k, r, margin)
+    tree = _TreeCandidates(inputs, margin)
     estimate = tree.estimate()
     if min(support, estimate) > budget:
         return None
@@ -223,15 +211,9 @@ def _support_candidates(
 class _TreeCandidates:
     """Candidate triples from a KD-tree per platform (module docstring)."""
 
-    def __init__(
-        self,
-        z: np.ndarray,
-        positions: np.ndarray,
-        log_tau: np.ndarray | None,
-        log_k: np.ndarray | None,
-        r: float,
-        margin: float,
-    ) -> None:
+    def __init__(self, inputs: EStepInputs, margin: float) -> None:
+        z, positions, r = inputs.locales, inputs.positions, inputs.r
+        log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
         M = positions.shape[0]
         N = z.shape[0]
         self.z = z

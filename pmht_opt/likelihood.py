@@ -50,7 +50,7 @@ def log_weights_from_d2(d2: np.ndarray, r: float, const: float) -> np.ndarray:
 
 @dataclass
 class EStepInputs:
-    """What a gated E-step was computed from: enough to recompute any row exactly."""
+    """What an E-step is computed from: enough to recompute any row exactly."""
 
     locales: np.ndarray
     positions: np.ndarray
@@ -61,71 +61,50 @@ class EStepInputs:
     def rows(self, lo: int, hi: int) -> np.ndarray:
         """``w[lo:hi]`` as ``(hi - lo, T*M)``, computed as the dense E-step computes it (bit for bit)."""
         M, T, _ = self.positions.shape
-        lt, lk = self.log_time_prior, self.log_platform_prior
         out = np.empty((hi - lo, T * M))
-        for _ in dense_blocks(
+        for _ in self.of_locales(lo, hi).dense_blocks(out):
+            pass
+        return out
+
+    def of_locales(self, lo: int, hi: int) -> EStepInputs:
+        """The inputs of locales ``lo .. hi - 1`` only (the paths and ``r`` are shared)."""
+        lt, lk = self.log_time_prior, self.log_platform_prior
+        return EStepInputs(
             self.locales[lo:hi],
             self.positions,
             None if lt is None else lt[lo:hi],
             None if lk is None else lk[lo:hi],
             self.r,
-            out,
-        ):
-            pass
-        return out
-
-
-def dense_blocks(
-    z: np.ndarray,
-    positions: np.ndarray,
-    log_tau: np.ndarray | None,
-    log_k: np.ndarray | None,
-    r: float,
-    out: np.ndarray,
-) -> Iterator[tuple[int, int, np.ndarray]]:
-    """Fill ``out (N, T*M)`` with the normalised weights of locales ``z (N, 2)`` against paths
-    ``positions (M, T, 2)``, a block of rows at a time; yields ``(i, j, log-normalisers of rows i..j)``
-    after each block, so a caller can accumulate sums while the block is in cache."""
-    M, T, _ = positions.shape
-    N = z.shape[0]
-    TM = T * M
-    p = np.ascontiguousarray(positions.transpose(1, 0, 2)).reshape(TM, 2)
-    const = log_const(r, T, M, log_tau is None, log_k is None)
-    # Blocks of rows small enough to stay in cache through every pass.
-    step = max(1, _BLOCK // TM)
-    tmp = np.empty((min(step, N), TM))
-    for i in range(0, N, step):
-        j = min(i + step, N)
-        lse = _dense_rows(
-            z[i:j],
-            p,
-            None if log_tau is None else log_tau[i:j],
-            None if log_k is None else log_k[i:j],
-            r,
-            const,
-            T,
-            M,
-            out[i:j],
-            tmp[: j - i],
         )
-        yield i, j, lse
+
+    def dense_blocks(self, out: np.ndarray) -> Iterator[tuple[int, int, np.ndarray]]:
+        """Fill ``out (N, T*M)`` with the normalised weights of the locales ``(N, 2)`` against the paths
+        ``(M, T, 2)``, a block of rows at a time; yields ``(i, j, log-normalisers of rows i..j)`` after
+        each block, so a caller can accumulate sums while the block is in cache."""
+        M, T, _ = self.positions.shape
+        N = self.locales.shape[0]
+        TM = T * M
+        p = np.ascontiguousarray(self.positions.transpose(1, 0, 2)).reshape(TM, 2)
+        const = log_const(self.r, T, M, self.log_time_prior is None, self.log_platform_prior is None)
+        # Blocks of rows small enough to stay in cache through every pass.
+        step = max(1, _BLOCK // TM)
+        tmp = np.empty((min(step, N), TM))
+        for i in range(0, N, step):
+            j = min(i + step, N)
+            lse = _dense_rows(self.of_locales(i, j), p, const, out[i:j], tmp[: j - i])
+            yield i, j, lse
 
 
 def _dense_rows(
-    z: np.ndarray,
-    p: np.ndarray,
-    log_tau: np.ndarray | None,
-    log_k: np.ndarray | None,
-    r: float,
-    const: float,
-    T: int,
-    M: int,
-    out: np.ndarray,
-    tmp: np.ndarray,
+    block: EStepInputs, p: np.ndarray, const: float, out: np.ndarray, tmp: np.ndarray
 ) -> np.ndarray:
-    """Normalised weights of locales ``z`` against the ``(T*M, 2)`` points ``p`` into ``out``; returns
-    their log-normalisers. ``tmp`` is scratch of ``out``'s shape. Every row is computed on its own, with
-    the same operations whatever the block: the E-step and the exact row recompute agree bit for bit."""
+    """Normalised weights of the locales of ``block`` against the ``(T*M, 2)`` points ``p`` into ``out``;
+    returns their log-normalisers. ``tmp`` is scratch of ``out``'s shape. Every row is computed on its
+    own, with the same operations whatever the block: the E-step and the exact row recompute agree bit
+    for bit."""
+    z, r = block.locales, block.r
+    log_tau, log_k = block.log_time_prior, block.log_platform_prior
+    M, T, _ = block.positions.shape
     scale = max(float(np.max(np.abs(p))), float(np.max(np.abs(z))))
     distance2 = None
     if scale < _SAFE_SCALE:

@@ -131,49 +131,12 @@ class PMHTConfig:
         for key in ("update_time_prior", "update_platform_prior", "accept_inaccurate"):
             if not isinstance(getattr(self, key), (bool, np.bool_)):
                 raise ConfigError(f"{key}: expected True or False, got {getattr(self, key)!r}.")
-        if not isinstance(self.solver_settings, dict):
-            kind = type(self.solver_settings).__name__
-            raise ConfigError(f"solver_settings: expected a dict, got {kind}.")
-        bad = [k for k in self.solver_settings if not isinstance(k, str)]
-        if bad:
-            raise ConfigError(f"solver_settings: expected setting names (strings), got {bad[0]!r}.")
-        for key, value in self.solver_settings.items():
-            if isinstance(value, float) and math.isnan(value):
-                raise ConfigError(f"solver_settings: {key} is NaN, which no backend can use.")
-        if self.threads is not None:
-            if (
-                isinstance(self.threads, bool)
-                or not isinstance(self.threads, (int, np.integer))
-                or self.threads < 1
-            ):
-                raise ConfigError(f"threads: expected a positive integer or None, got {self.threads!r}.")
-            self.threads = int(self.threads)
-        if isinstance(self.constraints, Constraint):
-            self.constraints = (self.constraints,)
-        try:
-            self.constraints = tuple(self.constraints)
-        except TypeError:
-            raise ConfigError(
-                f"constraints: expected a list of constraints, got {type(self.constraints).__name__}."
-            ) from None
-        for con in self.constraints:
-            if not isinstance(con, Constraint):
-                raise ConfigError(
-                    f"constraints: expected pmht_opt.constraints objects, got {type(con).__name__}."
-                )
-        given = {con.name for con in self.constraints}
-        implied = [i for con in self.constraints for i in con.implied() if i.name not in given]
-        self.constraints = (*self.constraints, *{i.name: i for i in implied}.values())
+        _check_solver_settings(self.solver_settings)
+        self.threads = _threads(self.threads)
+        self.constraints = _with_implied(self.constraints)
         check_constraints(self.solver, self.constraints)
         self.snapshots = validation.integers("snapshots", self.snapshots, ConfigError, 0)
-        stop = (self.stop,) if callable(self.stop) else self.stop
-        try:
-            self.stop = tuple(stop)
-        except TypeError:
-            raise ConfigError(f"stop: expected stopping criteria, got {type(self.stop).__name__}.") from None
-        for crit in self.stop:
-            if not callable(crit):
-                raise ConfigError(f"stop: expected callables progress -> bool, got {type(crit).__name__}.")
+        self.stop = _criteria(self.stop)
 
     def criteria(self) -> tuple[StoppingCriterion, ...]:
         """When to stop, in the order they are asked: at ``tol``, when any of :attr:`stop` says so, or
@@ -192,6 +155,62 @@ class PMHTConfig:
         }
         base.update(changes)
         return cls(**base)
+
+
+def _check_solver_settings(settings: Any) -> None:
+    """Raise :class:`ConfigError` unless ``settings`` is a dict of named settings none of which is NaN
+    (each backend checks the values it knows; NaN is what none of them can use)."""
+    if not isinstance(settings, dict):
+        raise ConfigError(f"solver_settings: expected a dict, got {type(settings).__name__}.")
+    bad = [k for k in settings if not isinstance(k, str)]
+    if bad:
+        raise ConfigError(f"solver_settings: expected setting names (strings), got {bad[0]!r}.")
+    for key, value in settings.items():
+        if isinstance(value, float) and math.isnan(value):
+            raise ConfigError(f"solver_settings: {key} is NaN, which no backend can use.")
+
+
+def _threads(threads: Any) -> int | None:
+    """``threads`` as an ``int``, or ``None`` (one per core); :class:`ConfigError` unless positive."""
+    if threads is None:
+        return None
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+        raise ConfigError(f"threads: expected a positive integer or None, got {threads!r}.")
+    return int(threads)
+
+
+def _with_implied(constraints: Any) -> tuple[Constraint, ...]:
+    """The constraints as a tuple, each checked to be one, followed by the companions they imply and
+    the caller did not give (one of each kind)."""
+    if isinstance(constraints, Constraint):
+        constraints = (constraints,)
+    try:
+        given = tuple(constraints)
+    except TypeError:
+        raise ConfigError(
+            f"constraints: expected a list of constraints, got {type(constraints).__name__}."
+        ) from None
+    for con in given:
+        if not isinstance(con, Constraint):
+            raise ConfigError(
+                f"constraints: expected pmht_opt.constraints objects, got {type(con).__name__}."
+            )
+    names = {con.name for con in given}
+    implied = [i for con in given for i in con.implied() if i.name not in names]
+    return (*given, *{i.name: i for i in implied}.values())
+
+
+def _criteria(stop: Any) -> tuple[StoppingCriterion, ...]:
+    """``stop`` (one criterion or several) as a tuple of callables; :class:`ConfigError` otherwise."""
+    criteria = (stop,) if callable(stop) else stop
+    try:
+        out = tuple(criteria)
+    except TypeError:
+        raise ConfigError(f"stop: expected stopping criteria, got {type(stop).__name__}.") from None
+    for crit in out:
+        if not callable(crit):
+            raise ConfigError(f"stop: expected callables progress -> bool, got {type(crit).__name__}.")
+    return out
 
 
 def plan_pmht(

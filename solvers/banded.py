@@ -75,6 +75,7 @@ from numpy.typing import ArrayLike
 from scipy.linalg import lapack
 
 from solvers.exceptions import ProblemError
+from solvers.problem import dense
 
 __all__ = ["BandedSmoother", "BandedSmootherResult", "banded_smoother"]
 
@@ -110,15 +111,6 @@ class BandedSmootherResult:
     def objective(self) -> np.ndarray:
         """``(B, K)``: ``J = prior + fit`` at the smoothed means."""
         return np.asarray(self.prior + self.fit)
-
-
-def _matrix(name: str, arr: ArrayLike, shape: tuple[int, ...]) -> np.ndarray:
-    out = np.asarray(arr, dtype=float)
-    if out.shape != shape:
-        raise ProblemError(f"{name} has shape {out.shape}, expected {shape}.")
-    if not np.all(np.isfinite(out)):
-        raise ProblemError(f"{name} has non-finite entries.")
-    return out
 
 
 class BandedSmoother:
@@ -158,9 +150,9 @@ class BandedSmoother:
         if F.ndim != 2 or F.shape[0] != F.shape[1] or F.shape[0] < 1:
             raise ProblemError(f"F must be a square matrix, got shape {F.shape}.")
         n = F.shape[0]
-        F = _matrix("F", F, (n, n))
-        Q = _matrix("Q", Q, (n, n))
-        h = _matrix("h", h, (n,))
+        F = dense("F", F, (n, n))
+        Q = dense("Q", Q, (n, n))
+        h = dense("h", h, (n,))
         if not np.allclose(Q, Q.T, rtol=1e-12, atol=0.0):
             raise ProblemError("Q must be symmetric.")
         try:
@@ -295,26 +287,8 @@ class BandedSmoother:
             Wrong shapes, non-finite data, negative weights, ``r <= 0``, or weights so large
             relative to ``r`` that the system cannot be represented.
         """
-        n, T, B = self.n, self.T, self.B
-        r = float(r)
-        if not (np.isfinite(r) and r > 0.0):
-            raise ProblemError(f"r must be a positive finite number, got {r!r}.")
-        x0 = np.asarray(x0, dtype=float)
-        if x0.ndim != 3 or x0.shape[2] < 1:
-            raise ProblemError(f"x0 must have shape (B, n, K) = ({B}, {n}, K >= 1), got {x0.shape}.")
-        K = x0.shape[2]
-        x0 = _matrix("x0", x0, (B, n, K))
-        y = _matrix("y", y, (B, T, K))
-        w = _matrix("weight", weight, (B, T))
-        if np.any(w < 0):
-            raise ProblemError("weight has negative entries.")
-        if int(refine) != refine or refine < 0:
-            raise ProblemError(f"refine must be a non-negative integer, got {refine!r}.")
-        with np.errstate(over="ignore"):
-            rho = w / r
-        if not np.all(np.isfinite(rho)):
-            raise ProblemError("weight / r overflows: the weights are too large for this r.")
-
+        r, x0, y, rho = self._data(r, x0, y, weight, refine)
+        n, K = self.n, x0.shape[2]
         # Unknowns and right-hand sides as (K, B, T, 2n), rows z_t = [lam_t, x_t] (scaled): the
         # transpose of the column-major (N, K) array LAPACK works on.
         xs0 = np.moveaxis(x0, 2, 0) / self.d  # (K, B, n)
@@ -340,7 +314,40 @@ class BandedSmoother:
         if not np.all(np.isfinite(z)):
             raise ProblemError("The solve produced non-finite values: the data are out of range.")
         backward_error = self._backward_error(z, xs0, yk, rho) if check else None
+        return self._result(z, x0, yk, rho, backward_error)
 
+    def _data(
+        self, r: float, x0: ArrayLike, y: ArrayLike, weight: ArrayLike, refine: int
+    ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """The arguments of :meth:`solve` checked: ``r``, ``x0 (B, n, K)``, ``y (B, T, K)`` and the
+        penalties ``rho = w / r (B, T)``; :class:`ProblemError` naming the first that is wrong."""
+        n, T, B = self.n, self.T, self.B
+        r = float(r)
+        if not (np.isfinite(r) and r > 0.0):
+            raise ProblemError(f"r must be a positive finite number, got {r!r}.")
+        x0 = np.asarray(x0, dtype=float)
+        if x0.ndim != 3 or x0.shape[2] < 1:
+            raise ProblemError(f"x0 must have shape (B, n, K) = ({B}, {n}, K >= 1), got {x0.shape}.")
+        K = x0.shape[2]
+        x0 = dense("x0", x0, (B, n, K))
+        y = dense("y", y, (B, T, K))
+        w = dense("weight", weight, (B, T))
+        if np.any(w < 0):
+            raise ProblemError("weight has negative entries.")
+        if int(refine) != refine or refine < 0:
+            raise ProblemError(f"refine must be a non-negative integer, got {refine!r}.")
+        with np.errstate(over="ignore"):
+            rho = w / r
+        if not np.all(np.isfinite(rho)):
+            raise ProblemError("weight / r overflows: the weights are too large for this r.")
+        return r, x0, y, rho
+
+    def _result(
+        self, z: np.ndarray, x0: np.ndarray, yk: np.ndarray, rho: np.ndarray, backward_error: float | None
+    ) -> BandedSmootherResult:
+        """The means and the objective's parts from the scaled solution ``z`` (``(K, B, T, 2n)``, scaled
+        in place back to the model's units)."""
+        n, T, B, K = self.n, self.T, self.B, z.shape[0]
         z *= self._unscale
         lam = z[..., :n]
         states = z[..., n:]

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from solvers.exceptions import ProblemError
+from solvers.problem import dense
 
 
 @dataclass
@@ -35,13 +36,15 @@ class SmootherResult:
     predicted_covs: np.ndarray
 
 
-def _check(name: str, arr: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    out = np.asarray(arr, dtype=float)
-    if out.shape != shape:
-        raise ProblemError(f"{name} has shape {out.shape}, expected {shape}.")
-    if not np.all(np.isfinite(out)):
-        raise ProblemError(f"{name} has non-finite entries.")
-    return out
+@dataclass
+class _Filtered:
+    """The forward pass, time-major: filtered and predicted moments, index ``t`` for ``t = 0..T``
+    (the predicted ones are unset at ``t = 0``)."""
+
+    mf: np.ndarray
+    Pf: np.ndarray
+    mp: np.ndarray
+    Pp: np.ndarray
 
 
 def rts_smoother(
@@ -70,91 +73,128 @@ def rts_smoother(
     weight
         Non-negative measurement weights ``(B, T)``: the covariance at step ``t`` is ``R / weight``.
     """
+    F, Q, H, R = _model(F, Q, H, R)
+    x0, P0, y, weight = _batch(H, x0, P0, y, weight)
+    T = weight.shape[1]
+    # A weight whose reciprocal overflows (below ~1e-308) is a measurement of infinite variance, whose
+    # gain is exactly zero: treat it as no measurement instead of dividing by it.
+    present = weight > 1.0 / np.finfo(float).max
+    # Measurement covariance scale 1 / weight; 1.0 where there is no measurement (its gain is
+    # masked to zero, so the value only has to keep the arithmetic finite).
+    scale = np.divide(1.0, weight, out=np.ones_like(weight), where=present).T
+    B, n, K = x0.shape
+    f = _Filtered(
+        mf=np.empty((T + 1, B, n, K)),
+        Pf=np.empty((T + 1, B, n, n)),
+        mp=np.empty((T + 1, B, n, K)),
+        Pp=np.empty((T + 1, B, n, n)),
+    )
+    f.mf[0] = x0
+    f.Pf[0] = P0
+    # Time-major copies so each step reads contiguous memory.
+    yt = np.ascontiguousarray(np.moveaxis(y, 1, 0))
+    _forward(f, F, Q, H, R, scale, yt, present.T)
+    return _smooth(f, F)
+
+
+def _model(F: np.ndarray, Q: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``F, Q`` ``(n, n)`` and ``H (p, n)``, ``R (p, p)`` as finite float arrays, or :class:`ProblemError`."""
     F = np.asarray(F, dtype=float)
     n = F.shape[0]
-    F = _check("F", F, (n, n))
-    Q = _check("Q", Q, (n, n))
+    F = dense("F", F, (n, n))
+    Q = dense("Q", Q, (n, n))
     H = np.asarray(H, dtype=float)
     p = H.shape[0]
-    H = _check("H", H, (p, n))
-    R = _check("R", R, (p, p))
+    H = dense("H", H, (p, n))
+    R = dense("R", R, (p, p))
+    return F, Q, H, R
+
+
+def _batch(
+    H: np.ndarray, x0: np.ndarray, P0: np.ndarray, y: np.ndarray, weight: np.ndarray
+) -> tuple[np.ndarray, ...]:
+    """The batch's starts, measurements and weights as float arrays whose shapes fit each other and the
+    measurement matrix ``H``; :class:`ProblemError` naming the first that does not (or is not finite,
+    or a negative weight)."""
+    p, n = H.shape
     x0 = np.asarray(x0, dtype=float)
     if x0.ndim != 3:
         raise ProblemError(f"x0 must have shape (B, n, K), got {x0.shape}.")
     B, K = x0.shape[0], x0.shape[2]
-    x0 = _check("x0", x0, (B, n, K))
-    P0 = _check("P0", P0, (B, n, n))
+    x0 = dense("x0", x0, (B, n, K))
+    P0 = dense("P0", P0, (B, n, n))
     weight = np.asarray(weight, dtype=float)
     T = weight.shape[1] if weight.ndim == 2 else -1
-    weight = _check("weight", weight, (B, T))
-    y = _check("y", y, (B, T, p, K))
+    weight = dense("weight", weight, (B, T))
+    y = dense("y", y, (B, T, p, K))
     if np.any(weight < 0):
         raise ProblemError("weight has negative entries.")
+    return x0, P0, y, weight
 
-    # Time-major copies so each step reads contiguous memory.
-    yt = np.ascontiguousarray(np.moveaxis(y, 1, 0))
-    # A weight whose reciprocal overflows (below ~1e-308) is a measurement of infinite variance, whose
-    # gain is exactly zero: treat it as no measurement instead of dividing by it.
-    present = weight > 1.0 / np.finfo(float).max
-    active = present.T  # (T, B)
-    # Measurement covariance scale 1 / weight; 1.0 where there is no measurement (its gain is
-    # masked to zero, so the value only has to keep the arithmetic finite).
-    scale = np.divide(1.0, weight, out=np.ones_like(weight), where=present).T
 
-    mf = np.empty((T + 1, B, n, K))
-    Pf = np.empty((T + 1, B, n, n))
-    mp = np.empty((T + 1, B, n, K))
-    Pp = np.empty((T + 1, B, n, n))
-    m = x0.copy()
-    P = P0.copy()
-    mf[0] = m
-    Pf[0] = P
+def _forward(
+    f: _Filtered,
+    F: np.ndarray,
+    Q: np.ndarray,
+    H: np.ndarray,
+    R: np.ndarray,
+    scale: np.ndarray,
+    yt: np.ndarray,
+    active: np.ndarray,
+) -> None:
+    """The forward pass into ``f`` from its moments at ``t = 0``: measurements ``yt (T, B, p, K)`` of
+    covariance ``R * scale`` (``scale (T, B)``) where ``active (T, B)``."""
+    m, P = f.mf[0], f.Pf[0]
     FT = F.T
-    if p == 1:
+    if H.shape[0] == 1:
         # Scalar measurements: no matrix inverse, and P - K (PH)' keeps P positive semidefinite.
         h = H[0]
         var = float(R[0, 0]) * scale
-        for t in range(1, T + 1):
+        for t in range(1, f.mf.shape[0]):
             m = F @ m
             P = F @ P @ FT + Q
-            mp[t] = m
-            Pp[t] = P
+            f.mp[t] = m
+            f.Pp[t] = P
             PH = P @ h  # (B, n)
             gain = PH / (PH @ h + var[t - 1])[:, None]
             gain *= active[t - 1][:, None]
             innov = yt[t - 1, :, 0, :] - h @ m  # (B, K)
             m = m + gain[:, :, None] * innov[:, None, :]
             P = P - gain[:, :, None] * PH[:, None, :]
-            mf[t] = m
-            Pf[t] = P
-    else:
-        eye = np.eye(n)
-        HT = H.T
-        for t in range(1, T + 1):
-            m = F @ m
-            P = F @ P @ FT + Q
-            mp[t] = m
-            Pp[t] = P
-            Rt = R[None] * scale[t - 1][:, None, None]
-            S = H @ P @ HT + Rt
-            gain = np.swapaxes(np.linalg.solve(S, H @ P), 1, 2)
-            gain *= active[t - 1][:, None, None]
-            m = m + gain @ (yt[t - 1] - H @ m)
-            # Joseph form keeps P symmetric positive semidefinite with tiny process noise.
-            IKH = eye - gain @ H
-            P = IKH @ P @ np.swapaxes(IKH, 1, 2) + gain @ Rt @ np.swapaxes(gain, 1, 2)
-            mf[t] = m
-            Pf[t] = P
+            f.mf[t] = m
+            f.Pf[t] = P
+        return
+    eye = np.eye(F.shape[0])
+    HT = H.T
+    for t in range(1, f.mf.shape[0]):
+        m = F @ m
+        P = F @ P @ FT + Q
+        f.mp[t] = m
+        f.Pp[t] = P
+        Rt = R[None] * scale[t - 1][:, None, None]
+        S = H @ P @ HT + Rt
+        gain = np.swapaxes(np.linalg.solve(S, H @ P), 1, 2)
+        gain *= active[t - 1][:, None, None]
+        m = m + gain @ (yt[t - 1] - H @ m)
+        # Joseph form keeps P symmetric positive semidefinite with tiny process noise.
+        IKH = eye - gain @ H
+        P = IKH @ P @ np.swapaxes(IKH, 1, 2) + gain @ Rt @ np.swapaxes(gain, 1, 2)
+        f.mf[t] = m
+        f.Pf[t] = P
 
+
+def _smooth(f: _Filtered, F: np.ndarray) -> SmootherResult:
+    """The backward pass over the filtered moments; the result in batch-major layout."""
+    T = f.mf.shape[0] - 1
     # Gains G_t = Pf_t F' Pp_{t+1}^-1 for all t at once: solve Pp_{t+1} G_t' = F Pf_t.
-    G = np.swapaxes(np.linalg.solve(Pp[1:], F @ Pf[:-1]), -1, -2)
-    ms = np.empty_like(mf)
-    ms[T] = mf[T]
+    G = np.swapaxes(np.linalg.solve(f.Pp[1:], F @ f.Pf[:-1]), -1, -2)
+    ms = np.empty_like(f.mf)
+    ms[T] = f.mf[T]
     for t in range(T - 1, -1, -1):
-        ms[t] = mf[t] + G[t] @ (ms[t + 1] - mp[t + 1])
+        ms[t] = f.mf[t] + G[t] @ (ms[t + 1] - f.mp[t + 1])
     return SmootherResult(
         means=np.moveaxis(ms, 0, 1),
-        filtered_means=np.moveaxis(mf, 0, 1),
-        filtered_covs=np.moveaxis(Pf, 0, 1),
-        predicted_covs=np.moveaxis(Pp, 0, 1),
+        filtered_means=np.moveaxis(f.mf, 0, 1),
+        filtered_covs=np.moveaxis(f.Pf, 0, 1),
+        predicted_covs=np.moveaxis(f.Pp, 0, 1),
     )

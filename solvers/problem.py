@@ -61,6 +61,16 @@ def SOC(dim: int) -> Cone:
     return Cone("soc", dim)
 
 
+def dense(name: str, arr: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """``arr`` as a float array of ``shape`` with finite entries; :class:`ProblemError` naming it if not."""
+    out = np.asarray(arr, dtype=float)
+    if out.shape != shape:
+        raise ProblemError(f"{name} has shape {out.shape}, expected {shape}.")
+    if not np.all(np.isfinite(out)):
+        raise ProblemError(f"{name} has non-finite entries.")
+    return out
+
+
 def _as_csc(name: str, mat: Any, shape: tuple[int, int]) -> sp.csc_matrix:
     if not sp.issparse(mat):
         arr = np.asarray(mat, dtype=float)

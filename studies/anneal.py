@@ -14,21 +14,16 @@ prior (paper eq. 11) once annealing is the default; "plain" / "plain+time-prior"
 
 from __future__ import annotations
 
-import argparse
-import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from pmht_opt.anneal import Anneal
-from pmht_opt.exceptions import ConfigError
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.scenario import paper_scenario
-from studies.options import RunOptions, positive_int
-from studies.report import EXCURSION_LIMIT, frame, summarise, write_summary
-from studies.store import Schema
-from studies.trials import Check, TrialTable, run_trials
+from studies.options import Choices, Count, StudyOptions, option
+from studies.report import EXCURSION_LIMIT, Columns, frame, markdown_table, summarise
+from studies.trials import Check, TrialTable
 
 #: Configurations compared: name -> (anneal, update_time_prior). The first four are the main grid;
 #: the rest vary the schedule so the default is chosen among more than one annealed candidate.
@@ -61,52 +56,32 @@ def trial(kind: str, seed: int, config: str, horizon: int) -> dict[str, Any]:
     }
 
 
-TABLE = TrialTable(
-    name="anneal",
-    fn=trial,
-    schema=Schema(
-        params={"kind": "str", "seed": "int", "config": "str", "horizon": "int"},
-        values={
-            "distance": "float",
-            "coverage": "float",
-            "excursion": "float",
-            "left_area": "bool",
-            "time": "float",
-        },
-    ),
-    checks={"time": Check("skip", reason="wall-clock time differs from run to run")},
+TABLE = TrialTable.of(
+    "anneal",
+    trial,
+    {"distance": "float", "coverage": "float", "excursion": "float", "left_area": "bool", "time": "float"},
+    {"time": Check("skip", reason="wall-clock time differs from run to run")},
 )
 
 
 @dataclass(frozen=True)
-class Options:
+class Options(StudyOptions):
     """Options of ``pmht-opt study anneal``."""
 
-    trials: int = 100
-    configs: tuple[str, ...] = tuple(CONFIGS)
-    kinds: tuple[str, ...] = KINDS
-    horizon: int = HORIZON
+    trials: int = option(100, Count("--trials", "trials per scenario and configuration"))
+    configs: tuple[str, ...] = option(tuple(CONFIGS), Choices("--configs", known=tuple(CONFIGS)))
+    kinds: tuple[str, ...] = option(KINDS, Choices("--kinds", "scenarios", known=KINDS))
+    horizon: int = option(HORIZON, Count("--horizon", "time steps (default: the paper's 500)", minimum=2))
 
-    def __post_init__(self) -> None:
-        positive_int("--trials", self.trials)
-        positive_int("--horizon", self.horizon, minimum=2)
-        for name, values, known in (("--configs", self.configs, CONFIGS), ("--kinds", self.kinds, KINDS)):
-            bad = [v for v in values if v not in known]
-            if bad or not values:
-                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
 
-    @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        """The command-line options of this study."""
-        p.add_argument("--trials", type=int, default=100, help="trials per scenario and configuration")
-        p.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
-        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
-        p.add_argument("--horizon", type=int, default=HORIZON, help="time steps (default: the paper's 500)")
-
-    @classmethod
-    def from_args(cls, ns: argparse.Namespace) -> Options:
-        """The options from parsed arguments."""
-        return cls(int(ns.trials), tuple(ns.configs), tuple(ns.kinds), int(ns.horizon))
+def params(options: Options) -> list[dict[str, Any]]:
+    """The trials of a run, configuration-major."""
+    return [
+        {"kind": k, "seed": s, "config": c, "horizon": options.horizon}
+        for c in options.configs
+        for k in options.kinds
+        for s in range(options.trials)
+    ]
 
 
 def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
@@ -138,53 +113,26 @@ def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+#: The summary's markdown table.
+COLUMNS: Columns = (
+    ("scenario", lambda s: s["scenario"]),
+    ("configuration", lambda s: s["config"]),
+    ("trials", lambda s: s["trials"]),
+    ("mean distance", lambda s: f"{s['mean_distance']:.1f}"),
+    ("median", lambda s: f"{s['median_distance']:.1f}"),
+    ("max", lambda s: f"{s['max_distance']:.1f}"),
+    ("mean coverage (0.3)", lambda s: f"{s['mean_coverage']:.3f}"),
+    ("runs leaving area by > 1", lambda s: s["left_area"]),
+    ("median time (s)", lambda s: f"{s['median_time']:.2f}"),
+)
+
+
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The summary as a markdown table."""
-    lines = [
-        "| scenario | configuration | trials | mean distance | median | max | mean coverage (0.3) "
-        "| runs leaving area by > 1 | median time (s) |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for s in table:
-        lines.append(
-            f"| {s['scenario']} | {s['config']} | {s['trials']} | {s['mean_distance']:.1f} "
-            f"| {s['median_distance']:.1f} | {s['max_distance']:.1f} | {s['mean_coverage']:.3f} "
-            f"| {s['left_area']} | {s['median_time']:.2f} |"
-        )
-    return "\n".join(lines)
-
-
-def params(options: Options) -> list[dict[str, Any]]:
-    """The trials of a run, configuration-major."""
-    return [
-        {"kind": k, "seed": s, "config": c, "horizon": options.horizon}
-        for c in options.configs
-        for k in options.kinds
-        for s in range(options.trials)
-    ]
-
-
-def main(run: RunOptions, options: Options) -> list[Path]:
-    """Run the study into ``run.out``: ``anneal.jsonl``, ``anneal_summary.json``, ``anneal.md``."""
-    out = run.prepare()
-    with run.executor() as ex:
-        rows = run_trials(
-            TABLE,
-            params(options),
-            out,
-            executor=ex,
-            progress=not run.quiet,
-            label="anneal",
-            resume=not run.fresh,
-        )
-    table = summary(rows)
-    text = markdown(table)
-    if not run.quiet:
-        print(text)
-    return [TABLE.path(out), *write_summary(out, "anneal", table, text)]
+    return markdown_table(COLUMNS, table)
 
 
 if __name__ == "__main__":
-    from studies.cli import main as cli_main
+    from studies.cli import run_script
 
-    sys.exit(cli_main(["anneal", "--out", str(Path(__file__).parent / "results" / "anneal"), *sys.argv[1:]]))
+    run_script("anneal", __file__)

@@ -35,26 +35,18 @@ def _time(fn: Callable[[], po.PlanResult], repeats: int) -> tuple[list[float], p
     return walls, out
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--backends", nargs="*", default=["clarabel", "osqp", "cvxpy"])
-    parser.add_argument("--smoothed-backends", nargs="*", default=["clarabel", "osqp", "cvxpy"])
-    parser.add_argument(
-        "--out", type=Path, default=Path(__file__).parent / "results" / "bench_constraints.json"
-    )
-    args = parser.parse_args()
-
-    sc = po.paper_scenario("A", seed=args.seed)
+def constrained(seed: int, backends: list[str], repeats: int) -> tuple[float, dict[str, dict[str, Any]]]:
+    """Scenario A under a speed limit (70% of the unconstrained plan's top speed) and the area's bounds,
+    per backend: the limit, and each backend's times and plan."""
+    sc = po.paper_scenario("A", seed=seed)
     free = po.plan_pmht(sc, po.PMHTConfig())
     vmax = 0.7 * free.max_speed
     cons = [po.SpeedLimit(vmax), po.AreaBounds(0, 10, 0, 10)]
-    constrained: dict[str, dict[str, Any]] = {}
-    for backend in args.backends:
+    out: dict[str, dict[str, Any]] = {}
+    for backend in backends:
         cfg = po.PMHTConfig(solver=backend, constraints=cons)
-        walls, res = _time(functools.partial(po.plan_pmht, sc, cfg), args.repeats)
-        constrained[backend] = {
+        walls, res = _time(functools.partial(po.plan_pmht, sc, cfg), repeats)
+        out[backend] = {
             "median_s": float(np.median(walls)),
             "runs_s": walls,
             "total_distance": res.total_distance,
@@ -67,17 +59,21 @@ def main() -> None:
             f"distance {res.total_distance:6.1f}  "
             f"max speed {res.max_speed:.4f} (limit {vmax:.4f})  max violation {res.max_violation:.1e}"
         )
+    return vmax, out
 
-    smoothed: dict[str, dict[str, Any]] = {}
+
+def smoothed(seed: int, backends: list[str], repeats: int) -> dict[str, dict[str, Any]]:
+    """GA-TSP PMHT smoothed plans of A, B and C per backend: times, tour and smoothed distances."""
+    out: dict[str, dict[str, Any]] = {}
     for kind in "ABC":
-        sck = po.paper_scenario(kind, seed=args.seed)
+        sck = po.paper_scenario(kind, seed=seed)
         t0 = time.perf_counter()
-        tour = po.order_locales(sck, "ga", seed=args.seed)
+        tour = po.order_locales(sck, "ga", seed=seed)
         ga_s = time.perf_counter() - t0
-        for backend in args.smoothed_backends:
+        for backend in backends:
             plan = functools.partial(po.plan_smoothed, sck, tour, po.PMHTConfig(solver=backend))
-            walls, res = _time(plan, args.repeats)
-            smoothed[f"{kind}/{backend}"] = {
+            walls, res = _time(plan, repeats)
+            out[f"{kind}/{backend}"] = {
                 "median_s": float(np.median(walls)),
                 "runs_s": walls,
                 "ga_s": ga_s,
@@ -89,13 +85,27 @@ def main() -> None:
                 f"{kind} smoothed {backend:9s} median {np.median(walls):6.2f} s (GA {ga_s:.2f} s)  "
                 f"tour {tour.total_distance:6.1f} -> smoothed {res.total_distance:6.1f}"
             )
+    return out
 
+
+def main() -> None:
+    """Run both parts and write their JSON (with provenance)."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--backends", nargs="*", default=["clarabel", "osqp", "cvxpy"])
+    parser.add_argument("--smoothed-backends", nargs="*", default=["clarabel", "osqp", "cvxpy"])
+    parser.add_argument(
+        "--out", type=Path, default=Path(__file__).parent / "results" / "bench_constraints.json"
+    )
+    args = parser.parse_args()
+    vmax, by_backend = constrained(args.seed, args.backends, args.repeats)
     payload = {
         "repeats": args.repeats,
         "speed_limit": vmax,
-        "constrained_A_speed_area": constrained,
+        "constrained_A_speed_area": by_backend,
         "target_s": 5.0,
-        "smoothed": smoothed,
+        "smoothed": smoothed(args.seed, args.smoothed_backends, args.repeats),
     }
     print(f"wrote: {write_json(args.out, payload)}")
 

@@ -42,32 +42,23 @@ import os
 import platform
 import subprocess
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import scipy
-import scipy.linalg
 
-from solvers.banded import BandedSmoother, banded_smoother
-from solvers.kalman import rts_smoother
-
-Array = np.ndarray
-Solver = Callable[[Array, Array, float, Array, Array, Array], Array]
-E1 = np.array([1.0, 0.0, 0.0])
-
-
-def ca_model(dt: float, q: float) -> tuple[Array, Array]:
-    """Constant-acceleration ``F`` and ``Q`` of one axis."""
-    F = np.array([[1.0, dt, dt**2 / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
-    Q = q * np.array(
-        [
-            [dt**5 / 20, dt**4 / 8, dt**3 / 6],
-            [dt**4 / 8, dt**3 / 3, dt**2 / 2],
-            [dt**3 / 6, dt**2 / 2, dt],
-        ]
-    )
-    return F, Q
+from studies.report import write_text
+from studies.smoother_candidates import (
+    Array,
+    Solver,
+    make_banded,
+    make_normal,
+    run_assoc_scan,
+    run_banded_function,
+    run_kkt_solve_banded,
+    run_rts,
+)
+from studies.smoother_reference import E1, ca_model, rts_extended
 
 
 def synthetic_batch(rng: np.random.Generator, M: int, T: int, kind: str) -> tuple[Array, Array, Array]:
@@ -102,267 +93,10 @@ def em_batch() -> tuple[Array, Array, Array, float, float, float] | None:
     return W, y, x0, float(sc.model.dt), float(sc.model.q), float(sc.r)
 
 
-# -- candidates ---------------------------------------------------------------------------------
-
-
-def run_rts(F: Array, Q: Array, r: float, W: Array, y: Array, x0: Array) -> Array:
-    M = W.shape[0]
-    res = rts_smoother(F, Q, E1[None], np.array([[r]]), x0, np.zeros((M, 3, 3)), y[:, :, None, :], W)
-    return res.means
-
-
-def make_banded(F: Array, Q: Array, W: Array, refine: int) -> Solver:
-    """Built once per model and size, as an EM loop would hold it."""
-    smoother = BandedSmoother(F, Q, E1, W.shape[1], W.shape[0])
-
-    def run(F: Array, Q: Array, r: float, W: Array, y: Array, x0: Array) -> Array:
-        return smoother.solve(r, x0, y, W, refine=refine).means
-
-    return run
-
-
-def run_banded_function(F: Array, Q: Array, r: float, W: Array, y: Array, x0: Array) -> Array:
-    """The functional form, which finds its assembled band in a cache."""
-    return banded_smoother(F, Q, E1, r, x0, y, W).means
-
-
-def run_kkt_solve_banded(F: Array, Q: Array, r: float, W: Array, y: Array, x0: Array) -> Array:
-    """Unscaled KKT ``[lam_t, x_t]`` per platform with ``scipy.linalg.solve_banded``."""
-    M, T = W.shape
-    n = 3
-    N = 2 * n * T
-    k = n  # F upper triangular, position measured: half-bandwidth n
-    ab0 = np.zeros((2 * k + 1, N))
-
-    def put(r0: Array, c0: Array, mat: Array) -> None:
-        a, c = np.nonzero(mat)
-        rows = (r0[:, None] + a).ravel()
-        cols = (c0[:, None] + c).ravel()
-        ab0[k + rows - cols, cols] = np.broadcast_to(mat[a, c], (r0.size, a.size)).ravel()
-
-    starts = 2 * n * np.arange(T)
-    put(starts, starts, -Q)
-    put(starts, starts + n, np.eye(n))
-    put(starts + n, starts, np.eye(n))
-    put(starts[1:], starts[1:] - n, -F)
-    put(starts[1:] - n, starts[1:], -F.T)
-    out = np.empty((M, T + 1, n, 2))
-    for m in range(M):
-        ab = ab0.copy()
-        rho = W[m] / r
-        ab[k, starts + n] += rho
-        rhs = np.zeros((T, 2 * n, 2))
-        rhs[:, n, :] = rho[:, None] * y[m]
-        rhs[0, :n, :] = F @ x0[m]
-        z = scipy.linalg.solve_banded((k, k), ab, rhs.reshape(N, 2), check_finite=False)
-        out[m, 0] = x0[m]
-        out[m, 1:] = z.reshape(T, 2 * n, 2)[:, n:, :]
-    return out
-
-
-def _normal_band(F: Array, Q: Array, r: float, W: Array) -> tuple[Array, Array]:
-    """Upper band of ``D' Q^-1 D + P`` for the stacked platforms, and ``Q^-1``."""
-    M, T = W.shape
-    n = 3
-    Qi = np.linalg.inv(Q)
-    Qi = 0.5 * (Qi + Qi.T)
-    diag_inner = Qi + F.T @ Qi @ F
-    off = -Qi @ F  # block (t, t-1)
-    u = 2 * n - 1
-    N = M * n * T
-    ab = np.zeros((u + 1, N))
-    blocks = M * T
-    last = (np.arange(blocks) % T) == T - 1
-    first = (np.arange(blocks) % T) == 0
-    for a in range(n):
-        for c in range(a, n):
-            cols = n * np.arange(blocks) + c
-            ab[u + a - c, cols] = np.where(last, Qi[a, c], diag_inner[a, c])
-    for a in range(n):  # row in block t-1 (component a), column in block t (component c): off[c, a]
-        for c in range(n):
-            cols = n * np.arange(blocks) + c
-            ab[u + (a - n) - c, cols] = np.where(first, 0.0, off[c, a])
-    ab[u, n * np.arange(blocks)] += (W / r).ravel()
-    return ab, Qi
-
-
-def _normal_rhs(F: Array, Qi: Array, r: float, W: Array, y: Array, x0: Array) -> Array:
-    M, T = W.shape
-    rhs = np.zeros((M, T, 3, 2))
-    rhs[:, :, 0, :] = (W / r)[..., None] * y
-    rhs[:, 0] += np.einsum("ij,mjk->mik", Qi @ F, x0)
-    return rhs
-
-
-def make_normal(refine: int) -> Solver:
-    def run(F: Array, Q: Array, r: float, W: Array, y: Array, x0: Array) -> Array:
-        M, T = W.shape
-        ab, Qi = _normal_band(F, Q, r, W)
-        rhs = _normal_rhs(F, Qi, r, W, y, x0)
-        cb = scipy.linalg.cholesky_banded(ab, check_finite=False)
-        x = scipy.linalg.cho_solve_banded((cb, False), rhs.reshape(-1, 2), check_finite=False)
-        for _ in range(refine):
-            s = x.reshape(M, T, 3, 2)
-            prev = np.concatenate([x0[:, None], s[:, :-1]], axis=1)
-            e = s - np.einsum("ij,mtjk->mtik", F, prev)  # x_t - F x_{t-1}, x_0 included
-            g = np.einsum("ij,mtjk->mtik", Qi, e)
-            Hx = g.copy()
-            Hx[:, :-1] -= np.einsum("ji,mtjk->mtik", F, g[:, 1:])
-            res = np.zeros_like(s)
-            res[:, :, 0, :] = (W / r)[..., None] * (y - s[:, :, 0, :])
-            res -= Hx
-            x = x + scipy.linalg.cho_solve_banded((cb, False), res.reshape(-1, 2), check_finite=False)
-        out = np.empty((M, T + 1, 3, 2))
-        out[:, 0] = x0
-        out[:, 1:] = x.reshape(M, T, 3, 2)
-        return out
-
-    return run
-
-
-def _inv3(A: Array) -> Array:
-    """Inverses of a stack of 3 x 3 matrices by cofactors (numpy's batched inverse loops in C
-    over LAPACK calls and is several times slower at this size)."""
-    a, b, c = A[..., 0, 0], A[..., 0, 1], A[..., 0, 2]
-    d, e, f = A[..., 1, 0], A[..., 1, 1], A[..., 1, 2]
-    g, h, i = A[..., 2, 0], A[..., 2, 1], A[..., 2, 2]
-    co = np.empty_like(A)
-    co[..., 0, 0] = e * i - f * h
-    co[..., 0, 1] = c * h - b * i
-    co[..., 0, 2] = b * f - c * e
-    co[..., 1, 0] = f * g - d * i
-    co[..., 1, 1] = a * i - c * g
-    co[..., 1, 2] = c * d - a * f
-    co[..., 2, 0] = d * h - e * g
-    co[..., 2, 1] = b * g - a * h
-    co[..., 2, 2] = a * e - b * d
-    det = a * co[..., 0, 0] + b * co[..., 1, 0] + c * co[..., 2, 0]
-    return co / det[..., None, None]
-
-
-def _prefix_scan(elems: tuple[Array, ...], combine: Callable[..., tuple[Array, ...]]) -> tuple[Array, ...]:
-    """Inclusive prefix products along axis 1 with ``2 log2 L`` vectorised levels (work ``O(L)``)."""
-    L = elems[0].shape[1]
-    if L == 1:
-        return elems
-    even = tuple(e[:, 0 : L - 1 : 2] for e in elems)
-    odd = tuple(e[:, 1:L:2] for e in elems)
-    pref = _prefix_scan(combine(even, odd), combine)  # pref[i] = e_0 ... e_{2i+1}
-    out = tuple(np.empty_like(e) for e in elems)
-    for o, p, e in zip(out, pref, elems, strict=True):
-        o[:, 1::2] = p
-        o[:, 0] = e[:, 0]
-    rest = tuple(e[:, 2::2] for e in elems)
-    if rest[0].shape[1]:
-        joined = combine(tuple(p[:, : rest[0].shape[1]] for p in pref), rest)
-        for o, j in zip(out, joined, strict=True):
-            o[:, 2::2] = j
-    return out
-
-
-def _filter_combine(first: tuple[Array, ...], second: tuple[Array, ...]) -> tuple[Array, ...]:
-    Ai, bi, Ci, ei, Ji = first
-    Aj, bj, Cj, ej, Jj = second
-    eye = np.eye(Ai.shape[-1])
-    Mx = _inv3(eye + Ci @ Jj)
-    AjM = Aj @ Mx
-    MtT = np.swapaxes(Mx, -1, -2)  # (I + J C)^-1 = ((I + C J)^-1)' for symmetric C, J
-    AiT = np.swapaxes(Ai, -1, -2)
-    AiTM = AiT @ MtT
-    A = AjM @ Ai
-    b = AjM @ (bi + Ci @ ej) + bj
-    C = AjM @ Ci @ np.swapaxes(Aj, -1, -2) + Cj
-    e = AiTM @ (ej - Jj @ bi) + ei
-    J = AiTM @ Jj @ Ai + Ji
-    return A, b, C, e, J
-
-
-def _smoother_combine(later: tuple[Array, ...], earlier: tuple[Array, ...]) -> tuple[Array, ...]:
-    """Reversed-time order: ``later`` holds the suffix already combined, ``earlier`` the new steps."""
-    El, gl = later
-    Ee, ge = earlier
-    return Ee @ El, Ee @ gl + ge
-
-
-def run_assoc_scan(F: Array, Q: Array, r: float, W: Array, y: Array, x0: Array) -> Array:
-    M, T = W.shape
-    n = 3
-    h = E1
-    Sinv = W / (W * (h @ Q @ h) + r)  # 1 / (h'Qh + r / w), zero without a measurement
-    Kg = (Q @ h)[None, None, :] * Sinv[..., None]  # (M, T, n)
-    hF = h @ F
-    A = np.broadcast_to(F, (M, T, n, n)) - Kg[..., :, None] * hF[None, None, None, :]
-    C = np.broadcast_to(Q, (M, T, n, n)) - Kg[..., :, None] * (h @ Q)[None, None, None, :]
-    b = Kg[..., :, None] * y[:, :, None, :]  # (M, T, n, 2)
-    Fh = F.T @ h
-    eta = Fh[None, None, :, None] * (Sinv[..., None] * y)[:, :, None, :]
-    J = np.outer(Fh, Fh)[None, None] * Sinv[..., None, None]
-    # The first step starts from the known x0 (no prior covariance).
-    pred = np.einsum("ij,mjk->mik", F, x0)
-    A = A.copy()
-    A[:, 0] = 0.0
-    b[:, 0] = pred + Kg[:, 0, :, None] * (y[:, 0, None, :] - pred[:, 0:1, :])
-    eta[:, 0] = 0.0
-    J = J.copy()
-    J[:, 0] = 0.0
-    _, mf, Pf, _, _ = _prefix_scan((A, b, C, eta, J), _filter_combine)
-    # Smoother elements E_t = Pf_t F' (F Pf_t F' + Q)^-1, g_t = m_t - E_t F m_t; E_T = 0, g_T = m_T.
-    E = np.zeros((M, T, n, n))
-    Pp = F @ Pf[:, :-1] @ F.T + Q
-    E[:, :-1] = Pf[:, :-1] @ F.T @ _inv3(Pp)
-    g = mf - E @ (F @ mf)
-    _, gs = _prefix_scan((E[:, ::-1], g[:, ::-1]), _smoother_combine)
-    out = np.empty((M, T + 1, n, 2))
-    out[:, 0] = x0
-    out[:, 1:] = gs[:, ::-1]
-    return out
-
-
-# -- reference -----------------------------------------------------------------------------------
-
-
-def _ld_solve(A: Array, B: Array) -> Array:
-    n = A.shape[0]
-    Mx = np.concatenate([A, B], axis=1)
-    for c in range(n):
-        p = c + int(np.argmax(np.abs(Mx[c:, c])))
-        Mx[[c, p]] = Mx[[p, c]]
-        Mx[c] = Mx[c] / Mx[c, c]
-        for i in range(n):
-            if i != c:
-                Mx[i] = Mx[i] - Mx[i, c] * Mx[c]
-    return Mx[:, n:]
-
-
-def rts_extended(F: Array, Q: Array, r: float, W: Array, y: Array, x0: Array) -> Array:
-    """``rts_smoother`` in ``np.longdouble`` (64-bit mantissa on x86-64), positions ``(M, T+1, 2)``."""
-    ld = np.longdouble
-    Fl, Ql, h = F.astype(ld), Q.astype(ld), E1.astype(ld)
-    M, T = W.shape
-    out = np.empty((M, T + 1, 2), dtype=ld)
-    for m in range(M):
-        mean = x0[m].astype(ld)  # (n, 2)
-        P = np.zeros((3, 3), dtype=ld)
-        mf, Pf, mp, Pp = [mean], [P], [mean], [P]
-        for t in range(T):
-            mean = Fl @ mean
-            P = Fl @ P @ Fl.T + Ql
-            mp.append(mean)
-            Pp.append(P)
-            if W[m, t] > 0:
-                Ph = P @ h
-                gain = Ph / (h @ Ph + ld(r) / ld(W[m, t]))
-                mean = mean + np.outer(gain, y[m, t].astype(ld) - h @ mean)
-                P = P - np.outer(gain, Ph)
-            mf.append(mean)
-            Pf.append(P)
-        ms = mf[T]
-        out[m, T] = ms[0]
-        for t in range(T - 1, -1, -1):
-            G = _ld_solve(Pp[t + 1], Fl @ Pf[t]).T
-            ms = mf[t] + G @ (ms - mp[t + 1])
-            out[m, t] = ms[0]
-    return out
+def reference_positions(F: Array, Q: Array, r: float, W: Array, y: Array, x0: Array) -> Array:
+    """Positions ``(M, T+1, 2)`` of :func:`~studies.smoother_reference.rts_extended`, platform by
+    platform (the x and y axes as its two columns)."""
+    return np.array([rts_extended(F, Q, E1, r, x0[m], y[m], W[m])[:, 0] for m in range(W.shape[0])])
 
 
 # -- driver --------------------------------------------------------------------------------------
@@ -391,6 +125,42 @@ def cpu_model() -> str:
     return platform.processor()
 
 
+def candidates(F: Array, Q: Array, W: Array, skip: set[str]) -> dict[str, Solver]:
+    """Every candidate not in ``skip``; the banded ones built for this model and size."""
+    every: dict[str, Solver] = {
+        "rts_smoother": run_rts,
+        "banded_kkt": make_banded(F, Q, W, refine=1),
+        "banded_kkt_norefine": make_banded(F, Q, W, refine=0),
+        "banded_kkt_function": run_banded_function,
+        "kkt_solve_banded": run_kkt_solve_banded,
+        "normal_cholesky": make_normal(0),
+        "normal_cholesky_refined": make_normal(3),
+        "assoc_scan": run_assoc_scan,
+    }
+    return {k: v for k, v in every.items() if k not in skip}
+
+
+def timed(
+    solvers: dict[str, Solver], args: tuple[Array, Array, float, Array, Array, Array], repeats: int
+) -> tuple[dict[str, Array], dict[str, list[float]], dict[str, str]]:
+    """Each solver's answer (its warm-up run), its times over ``repeats`` interleaved rounds, and the
+    failures of those that raised."""
+    outputs: dict[str, Array] = {}
+    failures: dict[str, str] = {}
+    for cname, fn in solvers.items():  # warm-up, and the answers compared below
+        try:
+            outputs[cname] = fn(*args)
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
+            failures[cname] = f"{type(exc).__name__}: {exc}"
+    times: dict[str, list[float]] = {c: [] for c in outputs}
+    for _ in range(repeats):
+        for cname in outputs:
+            t0 = time.perf_counter()
+            solvers[cname](*args)
+            times[cname].append(time.perf_counter() - t0)
+    return outputs, times, failures
+
+
 def bench_case(
     name: str,
     F: Array,
@@ -405,37 +175,14 @@ def bench_case(
 ) -> dict[str, object]:
     """Time every candidate and compare positions; ``extended`` systems get the extended-precision
     reference (all of them when it is at least ``M``, none when 0)."""
-    candidates: dict[str, Solver] = {
-        "rts_smoother": run_rts,
-        "banded_kkt": make_banded(F, Q, W, refine=1),
-        "banded_kkt_norefine": make_banded(F, Q, W, refine=0),
-        "banded_kkt_function": run_banded_function,
-        "kkt_solve_banded": run_kkt_solve_banded,
-        "normal_cholesky": make_normal(0),
-        "normal_cholesky_refined": make_normal(3),
-        "assoc_scan": run_assoc_scan,
-    }
-    candidates = {k: v for k, v in candidates.items() if k not in skip}
-    outputs: dict[str, Array] = {}
-    failures: dict[str, str] = {}
-    for cname, fn in candidates.items():  # warm-up, and the answers compared below
-        try:
-            outputs[cname] = fn(F, Q, r, W, y, x0)
-        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
-            failures[cname] = f"{type(exc).__name__}: {exc}"
-    times: dict[str, list[float]] = {c: [] for c in outputs}
-    for _ in range(repeats):
-        for cname in outputs:
-            t0 = time.perf_counter()
-            candidates[cname](F, Q, r, W, y, x0)
-            times[cname].append(time.perf_counter() - t0)
+    outputs, times, failures = timed(candidates(F, Q, W, skip), (F, Q, r, W, y, x0), repeats)
     rts_pos = outputs["rts_smoother"][:, :, 0, :]
     ref_name = "rts_smoother"
     ref = rts_pos
     sub = W.shape[0]
     if extended > 0:
         sub = min(extended, W.shape[0])
-        ref = rts_extended(F, Q, r, W[:sub], y[:sub], x0[:sub]).astype(float)
+        ref = reference_positions(F, Q, r, W[:sub], y[:sub], x0[:sub]).astype(float)
         ref_name = "rts_smoother in extended precision"
         if sub < W.shape[0]:
             ref_name += f" (first {sub} of {W.shape[0]} platforms)"
@@ -473,7 +220,35 @@ def bench_case(
     }
 
 
+def run_cases(repeats: int, large_repeats: int, skip_large: bool) -> dict[str, dict[str, object]]:
+    """Every case of the module notes, in order, each timed by :func:`bench_case`."""
+    rng = np.random.default_rng(2024)
+    F, Q = ca_model(1.0, 1e-8)
+    cases: dict[str, dict[str, object]] = {}
+    for kind in ("random", "coast"):
+        W, y, x0 = synthetic_batch(rng, 4, 500, kind)
+        label = f"A-shaped, {kind} weights"
+        cases[label] = bench_case(label, F, Q, 1e-2, W, y, x0, repeats, 4, set())
+    em = em_batch()
+    if em is not None:
+        W, y, x0, dt, q, r = em
+        Fm, Qm = ca_model(dt, q)
+        label = "scenario A, E-step weights after 30 paper iterations"
+        cases[label] = bench_case(label, Fm, Qm, r, W, y, x0, repeats, 4, set())
+    Fh, Qh = ca_model(1.0, 1e-4)
+    W, y, x0 = synthetic_batch(rng, 4, 500, "random")
+    label = "A-shaped, high signal-to-noise (q=1e-4, r=1e-8)"
+    cases[label] = bench_case(label, Fh, Qh, 1e-8, W, y, x0, repeats, 4, set())
+    if not skip_large:
+        for kind in ("random", "coast"):
+            W, y, x0 = synthetic_batch(rng, 20, 5000, kind)
+            label = f"M=20, T=5000, {kind} weights"
+            cases[label] = bench_case(label, F, Q, 1e-2, W, y, x0, large_repeats, 2, set())
+    return cases
+
+
 def main() -> None:
+    """Run the benchmark and write its JSON (cases, machine, load before and after)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=15)
     parser.add_argument("--large-repeats", type=int, default=5)
@@ -482,31 +257,7 @@ def main() -> None:
     args = parser.parse_args()
 
     load_before = os.getloadavg()
-    rng = np.random.default_rng(2024)
-    F, Q = ca_model(1.0, 1e-8)
-    cases: dict[str, dict[str, object]] = {}
-    for kind in ("random", "coast"):
-        W, y, x0 = synthetic_batch(rng, 4, 500, kind)
-        cases[f"A-shaped, {kind} weights"] = bench_case(
-            f"A-shaped, {kind} weights", F, Q, 1e-2, W, y, x0, args.repeats, 4, set()
-        )
-    em = em_batch()
-    if em is not None:
-        W, y, x0, dt, q, r = em
-        Fm, Qm = ca_model(dt, q)
-        label = "scenario A, E-step weights after 30 paper iterations"
-        cases[label] = bench_case(label, Fm, Qm, r, W, y, x0, args.repeats, 4, set())
-    Fh, Qh = ca_model(1.0, 1e-4)
-    W, y, x0 = synthetic_batch(rng, 4, 500, "random")
-    cases["A-shaped, high signal-to-noise (q=1e-4, r=1e-8)"] = bench_case(
-        "A-shaped, high signal-to-noise (q=1e-4, r=1e-8)", Fh, Qh, 1e-8, W, y, x0, args.repeats, 4, set()
-    )
-    if not args.skip_large:
-        for kind in ("random", "coast"):
-            W, y, x0 = synthetic_batch(rng, 20, 5000, kind)
-            cases[f"M=20, T=5000, {kind} weights"] = bench_case(
-                f"M=20, T=5000, {kind} weights", F, Q, 1e-2, W, y, x0, args.large_repeats, 2, set()
-            )
+    cases = run_cases(args.repeats, args.large_repeats, args.skip_large)
     payload = {
         "benchmark": "exact solvers of the unconstrained M-step, median of interleaved runs",
         "date": time.strftime("%Y-%m-%d %H:%M:%S"),
@@ -525,9 +276,8 @@ def main() -> None:
         "large_repeats": args.large_repeats,
         "cases": cases,
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(payload, indent=2) + "\n")
-    print(f"\nload average before {load_before}, after {os.getloadavg()}; written: {args.out}")
+    written = write_text(args.out, json.dumps(payload, indent=2) + "\n")
+    print(f"\nload average before {load_before}, after {os.getloadavg()}; written: {written}")
 
 
 if __name__ == "__main__":

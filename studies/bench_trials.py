@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any
 
 from studies.report import median, write_json
-from studies.store import Schema
 from studies.trials import TrialTable, run_trials
 
 TARGET_S = 10.0
@@ -31,7 +30,7 @@ def square(seed: int) -> dict[str, Any]:
     return {"square": seed * seed}
 
 
-TABLE = TrialTable("bench", square, Schema(params={"seed": "int"}, values={"square": "int"}))
+TABLE = TrialTable.of("bench", square, {"square": "int"})
 
 
 def time_trials(n: int, progress: bool) -> float:

@@ -1,10 +1,12 @@
 """The one parser of the studies: ``pmht-opt study NAME ...`` and ``python -m studies NAME ...``.
 
 Each study module provides a frozen ``Options`` dataclass (with ``add_arguments`` and ``from_args``),
-its results table ``TABLE`` and ``main(run, options) -> list of paths written``. This module adds the
-options every study shares (:class:`~studies.options.RunOptions`), turns the command line into the two
-typed option objects, and either runs the study or, with ``--verify K``, runs K stored trials again and
-compares them with their rows.
+its results table ``TABLE`` and either ``main(run, options) -> list of paths written`` or, for a study that
+is one table of trials and its summary, ``params(options)`` (the trials), ``summary(rows)`` and
+``markdown(summary)`` (:func:`run_study` runs those). This module adds the options every study shares
+(:class:`~studies.options.RunOptions`), turns the command line into the two typed option objects, and
+either runs the study or, with ``--verify K``, runs K stored trials again and compares them with their
+rows.
 
 Exit status: 0 done (or verified), 1 a verification mismatch, 2 a bad input or a failed study (the
 project's own error, one line), 130 interrupted (Ctrl-C; finished trials are kept).
@@ -19,27 +21,37 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
+from typing import Any, NamedTuple, NoReturn
 
 from pmht_opt.exceptions import MissingDependencyError, PmhtOptError
+from studies.executors import local_executor
 from studies.options import RunOptions
-from studies.trials import TrialTable, local_executor, verify
+from studies.trials import TrialTable, verify
 
-#: ``study name -> (module, one-line description)``.
-STUDIES: dict[str, tuple[str, str]] = {
-    "table1": ("studies.table1", "the paper's Table 1 and Figures 1-5, with what the paper lacked"),
-    "solvers": ("studies.compare_solvers", "M-step backends against the kalman reference: time, gaps"),
-    "scaling": ("studies.scaling", "plan time and peak memory as locales, horizon and platforms grow"),
-    "anneal": ("studies.anneal", "plain against annealed EM with both time-prior settings"),
-    "convergence": ("studies.convergence", "when the EM can stop: stopping rules replayed on full runs"),
-    "guaranteed_visits": (
+
+class Study(NamedTuple):
+    """A study the command runs: its module, and what it studies in one line (its ``--help``)."""
+
+    module: str
+    text: str
+
+
+#: The studies by their name on the command line.
+STUDIES: dict[str, Study] = {
+    "table1": Study("studies.table1", "the paper's Table 1 and Figures 1-5, with what the paper lacked"),
+    "solvers": Study("studies.compare_solvers", "M-step backends against the kalman reference: time, gaps"),
+    "scaling": Study("studies.scaling", "plan time and peak memory as locales, horizon and platforms grow"),
+    "anneal": Study("studies.anneal", "plain against annealed EM with both time-prior settings"),
+    "convergence": Study("studies.convergence", "when the EM can stop: stopping rules replayed on full runs"),
+    "guaranteed_visits": Study(
         "studies.guaranteed_visits",
         "VisitAll on the paper's scenarios: failures, coverage, excursions beyond the starts, time",
     ),
-    "constraints_stress": (
+    "constraints_stress": Study(
         "studies.constraints_stress",
         "constraints from generous to infeasible on every backend: solved, named, verified",
     ),
-    "coverage": ("studies.coverage", "distance at equal coverage over sensor radii, Pareto fronts"),
+    "coverage": Study("studies.coverage", "distance at equal coverage over sensor radii, Pareto fronts"),
 }
 
 
@@ -61,37 +73,17 @@ def require_extras() -> None:
         )
 
 
-def _add_run_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", type=Path, default=Path("study-results"), help="directory for the results")
-    p.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1: inline)")
-    p.add_argument(
-        "--dask-scheduler",
-        default=None,
-        metavar="ADDRESS",
-        help="run the trials on the Dask cluster at ADDRESS (tcp://host:port); needs the dask extra",
-    )
-    p.add_argument("--fresh", action="store_true", help="start the results file afresh (default: resume)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar and no printed tables")
-    p.add_argument(
-        "--verify",
-        type=int,
-        default=0,
-        metavar="K",
-        help="run K stored trials again and compare them with their rows instead of running the study",
-    )
-
-
 def _module(name: str) -> ModuleType:
-    return importlib.import_module(STUDIES[name][0])
+    return importlib.import_module(STUDIES[name].module)
 
 
 def build_parser(prog: str = "pmht-opt study") -> argparse.ArgumentParser:
     """The parser of every study's options."""
     parser = argparse.ArgumentParser(prog=prog, description="Run one of the studies into a directory.")
     names = parser.add_subparsers(dest="study", required=True, metavar="NAME")
-    for name, (_, text) in STUDIES.items():
-        sp = names.add_parser(name, help=text, description=text)
-        _add_run_options(sp)
+    for name, study in STUDIES.items():
+        sp = names.add_parser(name, help=study.text, description=study.text)
+        RunOptions.add_arguments(sp)
         _module(name).Options.add_arguments(sp)
     return parser
 
@@ -116,6 +108,21 @@ def run_verify(table: TrialTable, run: RunOptions, executor: cf.Executor | None 
     return 0
 
 
+def run_study(module: ModuleType, run: RunOptions, options: Any) -> list[Path]:
+    """Run the study of ``module`` with its ``options``; the paths written.
+
+    A module with a ``main`` runs it. Any other is one table of trials: its trials run into ``run.out``
+    (``TABLE.name`` + ``.jsonl``), then its summary goes to ``<name>_summary.json`` and, as markdown, to
+    ``<name>.md``.
+    """
+    if hasattr(module, "main"):
+        written: list[Path] = module.main(run, options)
+        return written
+    out, rows = run.run_trials(module.TABLE, module.params(options))
+    summary = module.summary(rows)
+    return run.publish(module.TABLE, out, summary, module.markdown(summary))
+
+
 def main(argv: Sequence[str] | None = None, prog: str = "pmht-opt study") -> int:
     """Parse ``argv``, run the study (or verify it) and print the paths written; return the exit status."""
     try:
@@ -126,14 +133,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "pmht-opt study") -> int
     ns = build_parser(prog).parse_args(argv)
     module = _module(ns.study)
     try:
-        run = RunOptions(
-            out=ns.out,
-            workers=ns.workers,
-            dask_scheduler=ns.dask_scheduler,
-            fresh=ns.fresh,
-            quiet=ns.quiet,
-            verify=ns.verify,
-        )
+        run = RunOptions.from_args(ns)
         options = module.Options.from_args(ns)
         if run.verify:
             executor = getattr(module, "verify_executor", None)
@@ -142,7 +142,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "pmht-opt study") -> int
                 return run_verify(module.TABLE, run, ex)
             finally:
                 ex.shutdown(wait=False, cancel_futures=True)
-        written: list[Path] = module.main(run, options)
+        written = run_study(module, run, options)
     except PmhtOptError as err:
         print(f"{prog}: error: {err}", file=sys.stderr)
         return 2
@@ -155,3 +155,10 @@ def main(argv: Sequence[str] | None = None, prog: str = "pmht-opt study") -> int
     for path in written:
         print(f"wrote: {path}")
     return 0
+
+
+def run_script(name: str, module_file: str) -> NoReturn:
+    """``python studies/MODULE.py ...``: study ``name`` into ``studies/results/NAME`` next to the module,
+    the rest of the command line as given; exits with the study's status."""
+    out = Path(module_file).parent / "results" / name
+    sys.exit(main([name, "--out", str(out), *sys.argv[1:]]))

@@ -371,8 +371,6 @@ def main(run_options: RunOptions, options: Options) -> list[Path]:
 
 
 if __name__ == "__main__":
-    from studies.cli import main as cli_main
+    from studies.cli import run_script
 
-    sys.exit(
-        cli_main(["solvers", "--out", str(Path(__file__).parent / "results" / "solvers"), *sys.argv[1:]])
-    )
+    run_script("solvers", __file__)

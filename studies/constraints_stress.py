@@ -28,24 +28,19 @@ A violation counts when it exceeds the planner's stated tolerance for the backen
 
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 import pmht_opt as po
-from pmht_opt.exceptions import ConfigError
 from pmht_opt.verify import RTOL
 from studies.constraint_measures import measure
-from studies.options import RunOptions
-from studies.report import frame, write_summary
-from studies.store import Schema
-from studies.trials import Check, TrialTable, run_trials
+from studies.options import Choices, StudyOptions, option
+from studies.report import Columns, frame, markdown_table
+from studies.trials import ERROR_COLUMNS, ITERATES, OUTCOME_CHECKS, Check, TrialTable
 
 KINDS = ("A", "B", "C", "L")
 BACKENDS = ("clarabel", "osqp", "cvxpy")
@@ -200,36 +195,34 @@ def trial(kind: str, case: str, backend: str) -> dict[str, Any]:
     return row
 
 
-TABLE = TrialTable(
-    name="constraints_stress",
-    fn=trial,
-    schema=Schema(
-        params={"kind": "str", "case": "str", "backend": "str"},
-        values={
-            "outcome": "str",
-            "expected": "str",
-            "raised": "str?",
-            "message": "str?",
-            "violation": "float?",
-            "worst": "str?",
-            "tolerance": "float",
-            "distance": "float?",
-            "coverage": "float?",
-            "excursion": "float?",
-            "seconds": "float",
-        },
-    ),
-    checks={
-        "seconds": Check("skip", reason="wall time"),
+#: What a trial records: its outcome against the expected one, the independent measurements of a plan
+#: (the worst constraint, its relative violation, the tolerance it is held to) and the time it took.
+RESULTS = {
+    "outcome": "str",
+    "expected": "str",
+    **ERROR_COLUMNS,
+    "violation": "float?",
+    "worst": "str?",
+    "tolerance": "float",
+    "distance": "float?",
+    "coverage": "float?",
+    "excursion": "float?",
+    "seconds": "float",
+}
+TABLE = TrialTable.of(
+    "constraints_stress",
+    trial,
+    RESULTS,
+    {
+        **OUTCOME_CHECKS,
         "violation": Check("close", rtol=1e-3, atol=1e-9, reason="last digits of the solvers' iterates"),
-        "distance": Check("close", rtol=1e-6, atol=1e-9, reason="last digits of the solvers' iterates"),
-        "excursion": Check("close", rtol=1e-6, atol=1e-9, reason="last digits of the solvers' iterates"),
-        "message": Check("skip", reason="figures in messages carry the solvers' last digits"),
+        "distance": ITERATES,
+        "excursion": ITERATES,
     },
 )
 
 
-def summarise(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """Per backend and expected answer: counts of each outcome, violations past tolerance, time."""
     df = frame(rows)
     df = df[df["error"] == ""]
@@ -256,62 +249,34 @@ def summarise(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+#: The summary's markdown table.
+COLUMNS: Columns = (
+    ("backend", lambda s: s["backend"]),
+    ("expected", lambda s: s["expected"]),
+    ("plans", lambda s: s["plans"]),
+    ("solved", lambda s: s["solved"]),
+    ("infeasible named", lambda s: s["infeasible_named"]),
+    ("failed", lambda s: s["failed"]),
+    ("violations past tolerance", lambda s: s["violations_past_tolerance"]),
+    ("max rel. violation", lambda s: f"{s['max_violation']:.2e}"),
+    ("median s", lambda s: f"{s['median_seconds']:.1f}"),
+    ("max s", lambda s: f"{s['max_seconds']:.1f}"),
+    ("failures", lambda s: s["failures"] or "-"),
+)
+
+
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The summary as a markdown table."""
-    lines = [
-        "| backend | expected | plans | solved | infeasible named | failed | violations past tolerance "
-        "| max rel. violation | median s | max s | failures |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for s in table:
-        cells = (
-            s["backend"],
-            s["expected"],
-            s["plans"],
-            s["solved"],
-            s["infeasible_named"],
-            s["failed"],
-            s["violations_past_tolerance"],
-            f"{s['max_violation']:.2e}",
-            f"{s['median_seconds']:.1f}",
-            f"{s['max_seconds']:.1f}",
-            s["failures"] or "-",
-        )
-        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
-    return "\n".join(lines)
+    return markdown_table(COLUMNS, table)
 
 
 @dataclass(frozen=True)
-class Options:
+class Options(StudyOptions):
     """Options of ``pmht-opt study constraints_stress``."""
 
-    backends: tuple[str, ...] = BACKENDS
-    kinds: tuple[str, ...] = KINDS
-    cases: tuple[str, ...] = tuple(CASES)
-
-    def __post_init__(self) -> None:
-        for name, values, known in (
-            ("--backends", self.backends, BACKENDS),
-            ("--kinds", self.kinds, KINDS),
-            ("--cases", self.cases, tuple(CASES)),
-        ):
-            bad = [v for v in values if v not in known]
-            if bad or not values:
-                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
-
-    @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        """The command-line options of this study."""
-        p.add_argument("--backends", nargs="+", default=list(BACKENDS), choices=list(BACKENDS))
-        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
-        p.add_argument(
-            "--cases", nargs="+", default=list(CASES), choices=list(CASES), help="constraint cases"
-        )
-
-    @classmethod
-    def from_args(cls, ns: argparse.Namespace) -> Options:
-        """The options from parsed arguments."""
-        return cls(tuple(ns.backends), tuple(ns.kinds), tuple(ns.cases))
+    backends: tuple[str, ...] = option(BACKENDS, Choices("--backends", known=BACKENDS))
+    kinds: tuple[str, ...] = option(KINDS, Choices("--kinds", "scenarios", known=KINDS))
+    cases: tuple[str, ...] = option(tuple(CASES), Choices("--cases", "constraint cases", known=tuple(CASES)))
 
 
 def params(options: Options) -> list[dict[str, Any]]:
@@ -324,36 +289,7 @@ def params(options: Options) -> list[dict[str, Any]]:
     ]
 
 
-def main(run: RunOptions, options: Options) -> list[Path]:
-    """Run the study into ``run.out``: ``constraints_stress.jsonl``, the summary and its table."""
-    out = run.prepare()
-    with run.executor() as ex:
-        rows = run_trials(
-            TABLE,
-            params(options),
-            out,
-            executor=ex,
-            progress=not run.quiet,
-            label="constraints_stress",
-            resume=not run.fresh,
-        )
-    table = summarise(rows)
-    text = markdown(table)
-    if not run.quiet:
-        print(text)
-    return [TABLE.path(out), *write_summary(out, "constraints_stress", table, text)]
-
-
 if __name__ == "__main__":
-    from studies.cli import main as cli_main
+    from studies.cli import run_script
 
-    sys.exit(
-        cli_main(
-            [
-                "constraints_stress",
-                "--out",
-                str(Path(__file__).parent / "results" / "constraints_stress"),
-                *sys.argv[1:],
-            ]
-        )
-    )
+    run_script("constraints_stress", __file__)

@@ -14,28 +14,23 @@ stops soonest while changing nothing a user cares about (docs/decisions.md).
 
 from __future__ import annotations
 
-import argparse
-import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pmht_opt.constraints import VisitAll
 from pmht_opt.em import EMCallbacks, EMRun, IterationRecord
-from pmht_opt.exceptions import ConfigError
 from pmht_opt.geometry import point_polyline_distance
 from pmht_opt.model import POS
 from pmht_opt.ordering import order_locales
 from pmht_opt.planner import PMHTConfig
 from pmht_opt.scenario import paper_scenario
 from pmht_opt.smoothed import plan_smoothed
-from studies.options import RunOptions, positive_int
-from studies.report import frame, write_summary
-from studies.store import Schema
-from studies.trials import Check, TrialTable, run_trials
+from studies.options import Choices, Count, StudyOptions, option
+from studies.report import Columns, frame, markdown_table
+from studies.trials import Check, TrialTable
 
 KINDS = ("A", "B", "C")
 CONFIGS = ("default", "visitall-0.3", "smoothed-0.3")
@@ -87,23 +82,21 @@ def trial(kind: str, seed: int, config: str) -> dict[str, Any]:
     return {**signals, "scale": 10.0}
 
 
-TABLE = TrialTable(
-    name="convergence",
-    fn=trial,
-    schema=Schema(
-        params={"kind": "str", "seed": "int", "config": "str"},
-        values={
-            "path_change": "list",
-            "changed": "list",
-            "settled": "list",
-            "distance": "list",
-            "coverage": "list",
-            "scale": "float",
-        },
-    ),
-    checks={
-        "path_change": Check("close", rtol=1e-6, atol=1e-9, reason="last-digit differences of the solver")
-    },
+#: What a trial records: each signal after every iteration, and the length its path changes are judged
+#: against.
+RESULTS = {
+    "path_change": "list",
+    "changed": "list",
+    "settled": "list",
+    "distance": "list",
+    "coverage": "list",
+    "scale": "float",
+}
+TABLE = TrialTable.of(
+    "convergence",
+    trial,
+    RESULTS,
+    {"path_change": Check("close", rtol=1e-6, atol=1e-9, reason="last-digit differences of the solver")},
 )
 
 
@@ -119,7 +112,7 @@ def stop_iteration(row: Mapping[str, Any], path_rtol: float, stable: int) -> int
     return len(row["path_change"])
 
 
-def replay(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """Per (scenario, configuration, candidate rule): iterations saved and what changes against 100."""
     df = frame(rows)
     df = df[df["error"] == ""]
@@ -155,56 +148,33 @@ def replay(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+#: The replay's markdown table.
+COLUMNS: Columns = (
+    ("scenario", lambda s: s["scenario"]),
+    ("configuration", lambda s: s["config"]),
+    ("path_rtol", lambda s: f"{s['path_rtol']:g}"),
+    ("stable", lambda s: s["stable"]),
+    ("mean iterations", lambda s: f"{s['mean_iterations']:.1f}"),
+    ("max", lambda s: s["max_iterations"]),
+    ("mean rel. distance change", lambda s: f"{s['mean_rel_distance_change']:.2e}"),
+    ("max", lambda s: f"{s['max_rel_distance_change']:.2e}"),
+    ("max coverage change", lambda s: f"{s['max_coverage_change']:.3f}"),
+    ("trials with coverage changed", lambda s: s["trials_coverage_changed"]),
+)
+
+
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The replay as a markdown table."""
-    lines = [
-        "| scenario | configuration | path_rtol | stable | mean iterations | max | mean rel. distance change "
-        "| max | max coverage change | trials with coverage changed |",
-        "|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for s in table:
-        cells = (
-            s["scenario"],
-            s["config"],
-            f"{s['path_rtol']:g}",
-            s["stable"],
-            f"{s['mean_iterations']:.1f}",
-            s["max_iterations"],
-            f"{s['mean_rel_distance_change']:.2e}",
-            f"{s['max_rel_distance_change']:.2e}",
-            f"{s['max_coverage_change']:.3f}",
-            s["trials_coverage_changed"],
-        )
-        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
-    return "\n".join(lines)
+    return markdown_table(COLUMNS, table)
 
 
 @dataclass(frozen=True)
-class Options:
+class Options(StudyOptions):
     """Options of ``pmht-opt study convergence``."""
 
-    trials: int = 100
-    configs: tuple[str, ...] = CONFIGS
-    kinds: tuple[str, ...] = KINDS
-
-    def __post_init__(self) -> None:
-        positive_int("--trials", self.trials)
-        for name, values, known in (("--configs", self.configs, CONFIGS), ("--kinds", self.kinds, KINDS)):
-            bad = [v for v in values if v not in known]
-            if bad or not values:
-                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
-
-    @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        """The command-line options of this study."""
-        p.add_argument("--trials", type=int, default=100, help="trials per scenario and configuration")
-        p.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
-        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
-
-    @classmethod
-    def from_args(cls, ns: argparse.Namespace) -> Options:
-        """The options from parsed arguments."""
-        return cls(int(ns.trials), tuple(ns.configs), tuple(ns.kinds))
+    trials: int = option(100, Count("--trials", "trials per scenario and configuration"))
+    configs: tuple[str, ...] = option(CONFIGS, Choices("--configs", known=CONFIGS))
+    kinds: tuple[str, ...] = option(KINDS, Choices("--kinds", "scenarios", known=KINDS))
 
 
 def params(options: Options) -> list[dict[str, Any]]:
@@ -217,31 +187,7 @@ def params(options: Options) -> list[dict[str, Any]]:
     ]
 
 
-def main(run: RunOptions, options: Options) -> list[Path]:
-    """Run the study into ``run.out``: ``convergence.jsonl``, the replay summary and its table."""
-    out = run.prepare()
-    with run.executor() as ex:
-        rows = run_trials(
-            TABLE,
-            params(options),
-            out,
-            executor=ex,
-            progress=not run.quiet,
-            label="convergence",
-            resume=not run.fresh,
-        )
-    table = replay(rows)
-    text = markdown(table)
-    if not run.quiet:
-        print(text)
-    return [TABLE.path(out), *write_summary(out, "convergence", table, text)]
-
-
 if __name__ == "__main__":
-    from studies.cli import main as cli_main
+    from studies.cli import run_script
 
-    sys.exit(
-        cli_main(
-            ["convergence", "--out", str(Path(__file__).parent / "results" / "convergence"), *sys.argv[1:]]
-        )
-    )
+    run_script("convergence", __file__)

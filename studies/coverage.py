@@ -23,8 +23,6 @@ the coverage-distance points with their Pareto front.
 
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -42,10 +40,9 @@ from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario, paper_scenario
 from pmht_opt.smoothed import plan_smoothed
-from studies.options import RunOptions, positive_int
-from studies.report import frame, summarise, write_summary
-from studies.store import Schema
-from studies.trials import Check, TrialTable, run_trials
+from studies.options import Choices, Count, Positives, RunOptions, StudyOptions, option
+from studies.report import Columns, frame, markdown_table, summarise
+from studies.trials import TIME_CHECKS, TIME_COLUMNS, TrialTable
 
 KINDS = ("A", "B", "C")
 RADII = (0.05, 0.1, 0.2, 0.3, 0.5)
@@ -122,72 +119,37 @@ def trial(kind: str, seed: int, method: str, radius: float, horizon: int) -> dic
     }
 
 
-TABLE = TrialTable(
-    name="coverage",
-    fn=trial,
-    schema=Schema(
-        params={"kind": "str", "seed": "int", "method": "str", "radius": "float", "horizon": "int"},
-        values={
-            "distance": "float",
-            "coverage": "float?",
-            "coverage_at": "dict",
-            "max_miss": "float",
-            "max_acceleration": "float",
-            "energy": "float",
-            "excursion": "float",
-            "cpu": "float",
-            "wall": "float",
-        },
-    ),
-    checks={
-        "cpu": Check("skip", reason="CPU time differs from run to run"),
-        "wall": Check("skip", reason="wall-clock time differs from run to run"),
-    },
-)
+#: What a trial records: the plan's measures, its coverage at every radius of the study and its times.
+RESULTS = {
+    "distance": "float",
+    "coverage": "float?",
+    "coverage_at": "dict",
+    "max_miss": "float",
+    "max_acceleration": "float",
+    "energy": "float",
+    "excursion": "float",
+    **TIME_COLUMNS,
+}
+TABLE = TrialTable.of("coverage", trial, RESULTS, TIME_CHECKS)
 
 
 @dataclass(frozen=True)
-class Options:
+class Options(StudyOptions):
     """Options of ``pmht-opt study coverage``."""
 
-    trials: int = 100
-    radii: tuple[float, ...] = RADII
-    methods: tuple[str, ...] = METHODS
-    kinds: tuple[str, ...] = KINDS
-    horizon: int = HORIZON
-
-    def __post_init__(self) -> None:
-        positive_int("--trials", self.trials)
-        positive_int("--horizon", self.horizon, minimum=2)
-        if not self.radii or any(not (np.isfinite(r) and r > 0) for r in self.radii):
-            raise ConfigError(f"--radii: expected positive numbers, got {list(self.radii)}.")
-        for name, values, known in (("--methods", self.methods, METHODS), ("--kinds", self.kinds, KINDS)):
-            bad = [v for v in values if v not in known]
-            if bad or not values:
-                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
-
-    @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        """The command-line options of this study."""
-        p.add_argument("--trials", type=int, default=100, help="seeds 0..TRIALS-1 per scenario")
-        p.add_argument("--radii", nargs="+", type=float, default=list(RADII), help="coverage radii")
-        p.add_argument(
+    trials: int = option(100, Count("--trials", "seeds 0..TRIALS-1 per scenario"))
+    radii: tuple[float, ...] = option(RADII, Positives("--radii", "coverage radii"))
+    methods: tuple[str, ...] = option(
+        METHODS,
+        Choices(
             "--methods",
-            nargs="+",
-            default=None,
-            choices=list(METHODS),
-            help="planners (default: all whose ordering is installed)",
-        )
-        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
-        p.add_argument("--horizon", type=int, default=HORIZON, help="time steps (default: the paper's 500)")
-
-    @classmethod
-    def from_args(cls, ns: argparse.Namespace) -> Options:
-        """The options from parsed arguments."""
-        methods = tuple(ns.methods) if ns.methods else default_methods()
-        return cls(
-            int(ns.trials), tuple(float(r) for r in ns.radii), methods, tuple(ns.kinds), int(ns.horizon)
-        )
+            "planners (default: all whose ordering is installed)",
+            known=METHODS,
+            installed=default_methods,
+        ),
+    )
+    kinds: tuple[str, ...] = option(KINDS, Choices("--kinds", "scenarios", known=KINDS))
+    horizon: int = option(HORIZON, Count("--horizon", "time steps (default: the paper's 500)", minimum=2))
 
 
 def params(options: Options) -> list[dict[str, Any]]:
@@ -255,21 +217,23 @@ def _ratios(out: list[dict[str, Any]], kind: str, radius: float, base: Mapping[s
             entry["baseline"] = min(base, key=lambda k: base[k] if np.isfinite(base[k]) else np.inf)
 
 
+#: The summary's markdown table.
+COLUMNS: Columns = (
+    ("scenario", lambda s: s["scenario"]),
+    ("radius", lambda s: f"{s['radius']:g}"),
+    ("planner", lambda s: s["method"]),
+    ("trials (failed)", lambda s: f"{s['trials']} ({s['failed']})"),
+    ("mean distance", lambda s: f"{s['mean_distance']:.2f}"),
+    ("median", lambda s: f"{s['median_distance']:.2f}"),
+    ("mean coverage", lambda s: f"{s['mean_coverage']:.3f}"),
+    ("median time (s)", lambda s: f"{s['median_time']:.2f}"),
+    ("coverage / best baseline", lambda s: f"{s['ratio']:.3f} ({s['baseline']})" if "ratio" in s else ""),
+)
+
+
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The summary as a markdown table."""
-    lines = [
-        "| scenario | radius | planner | trials (failed) | mean distance | median | mean coverage "
-        "| median time (s) | coverage / best baseline |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for s in table:
-        ratio = f"{s['ratio']:.3f} ({s['baseline']})" if "ratio" in s else ""
-        lines.append(
-            f"| {s['scenario']} | {s['radius']:g} | {s['method']} | {s['trials']} ({s['failed']}) "
-            f"| {s['mean_distance']:.2f} | {s['median_distance']:.2f} | {s['mean_coverage']:.3f} "
-            f"| {s['median_time']:.2f} | {ratio} |"
-        )
-    return "\n".join(lines)
+    return markdown_table(COLUMNS, table)
 
 
 def main(run: RunOptions, options: Options) -> list[Path]:
@@ -277,28 +241,13 @@ def main(run: RunOptions, options: Options) -> list[Path]:
     scenario."""
     from studies.coverage_figures import write_figures
 
-    out = run.prepare()
-    with run.executor() as ex:
-        rows = run_trials(
-            TABLE,
-            params(options),
-            out,
-            executor=ex,
-            progress=not run.quiet,
-            label="coverage",
-            resume=not run.fresh,
-        )
+    out, rows = run.run_trials(TABLE, params(options))
     table = summary(rows, options.radii)
-    text = markdown(table)
-    if not run.quiet:
-        print(text)
-    figures = write_figures(rows, options.radii, out)
-    return [TABLE.path(out), *write_summary(out, "coverage", table, text), *figures]
+    written = run.publish(TABLE, out, table, markdown(table))
+    return [*written, *write_figures(rows, options.radii, out)]
 
 
 if __name__ == "__main__":
-    from studies.cli import main as cli_main
+    from studies.cli import run_script
 
-    sys.exit(
-        cli_main(["coverage", "--out", str(Path(__file__).parent / "results" / "coverage"), *sys.argv[1:]])
-    )
+    run_script("coverage", __file__)

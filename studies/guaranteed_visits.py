@@ -12,23 +12,18 @@ which the constraint keeps at or below its ``keep_within`` (0.5).
 
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 import pmht_opt as po
-from pmht_opt.exceptions import ConfigError
 from pmht_opt.result import excursion
-from studies.options import RunOptions, positive_int
-from studies.report import frame, write_summary
-from studies.store import Schema
-from studies.trials import Check, TrialTable, run_trials
+from studies.options import Choices, Count, Positives, StudyOptions, option
+from studies.report import Columns, frame, markdown_table
+from studies.trials import ERROR_COLUMNS, ITERATES, OUTCOME_CHECKS, TrialTable
 
 KINDS = ("A", "B", "C")
 BACKENDS = ("clarabel", "osqp", "cvxpy")
@@ -59,34 +54,22 @@ def trial(kind: str, seed: int, radius: float, backend: str) -> dict[str, Any]:
     return row
 
 
-TABLE = TrialTable(
-    name="guaranteed_visits",
-    fn=trial,
-    schema=Schema(
-        params={"kind": "str", "seed": "int", "radius": "float", "backend": "str"},
-        values={
-            "outcome": "str",
-            "raised": "str?",
-            "message": "str?",
-            "coverage": "float?",
-            "distance": "float?",
-            "extra_excursion": "float?",
-            "fallbacks": "int?",
-            "seconds": "float",
-        },
-    ),
-    checks={
-        "seconds": Check("skip", reason="wall time"),
-        "distance": Check("close", rtol=1e-6, atol=1e-9, reason="last digits of the solvers' iterates"),
-        "extra_excursion": Check(
-            "close", rtol=1e-6, atol=1e-9, reason="last digits of the solvers' iterates"
-        ),
-        "message": Check("skip", reason="figures in messages carry the solvers' last digits"),
-    },
+#: What a trial records: its outcome (a plan, or the error), the plan's measures and the time it took.
+RESULTS = {
+    "outcome": "str",
+    **ERROR_COLUMNS,
+    "coverage": "float?",
+    "distance": "float?",
+    "extra_excursion": "float?",
+    "fallbacks": "int?",
+    "seconds": "float",
+}
+TABLE = TrialTable.of(
+    "guaranteed_visits", trial, RESULTS, {**OUTCOME_CHECKS, "distance": ITERATES, "extra_excursion": ITERATES}
 )
 
 
-def summarise(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """Per scenario, radius and backend: plans, errors, full coverage, excursions, time."""
     df = frame(rows)
     df = df[df["error"] == ""]
@@ -113,62 +96,36 @@ def summarise(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+#: The summary's markdown table.
+COLUMNS: Columns = (
+    ("scenario", lambda s: s["scenario"]),
+    ("radius", lambda s: f"{s['radius']:g}"),
+    ("backend", lambda s: s["backend"]),
+    ("trials", lambda s: s["trials"]),
+    ("errors", lambda s: f"{s['errors']}" + (f" ({s['error_classes']})" if s["error_classes"] else "")),
+    ("full coverage", lambda s: s["full_coverage"]),
+    ("> 0.5 out", lambda s: s["over_half_unit_out"]),
+    ("> 1 out", lambda s: s["over_one_unit_out"]),
+    ("max out", lambda s: f"{s['max_extra_excursion']:.3f}"),
+    ("mean distance", lambda s: f"{s['mean_distance']:.1f}"),
+    ("mean s", lambda s: f"{s['mean_seconds']:.2f}"),
+    ("median s", lambda s: f"{s['median_seconds']:.2f}"),
+)
+
+
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """The summary as a markdown table."""
-    lines = [
-        "| scenario | radius | backend | trials | errors | full coverage | > 0.5 out | > 1 out | max out "
-        "| mean distance | mean s | median s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for s in table:
-        cells = (
-            s["scenario"],
-            f"{s['radius']:g}",
-            s["backend"],
-            s["trials"],
-            f"{s['errors']}" + (f" ({s['error_classes']})" if s["error_classes"] else ""),
-            s["full_coverage"],
-            s["over_half_unit_out"],
-            s["over_one_unit_out"],
-            f"{s['max_extra_excursion']:.3f}",
-            f"{s['mean_distance']:.1f}",
-            f"{s['mean_seconds']:.2f}",
-            f"{s['median_seconds']:.2f}",
-        )
-        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
-    return "\n".join(lines)
+    return markdown_table(COLUMNS, table)
 
 
 @dataclass(frozen=True)
-class Options:
+class Options(StudyOptions):
     """Options of ``pmht-opt study guaranteed_visits``."""
 
-    trials: int = 100
-    radii: tuple[float, ...] = (0.1, 0.3)
-    kinds: tuple[str, ...] = KINDS
-    backends: tuple[str, ...] = ("clarabel",)
-
-    def __post_init__(self) -> None:
-        positive_int("--trials", self.trials)
-        if not self.radii or not all(r > 0 for r in self.radii):
-            raise ConfigError(f"--radii: expected positive radii, got {list(self.radii)}.")
-        for name, values, known in (("--kinds", self.kinds, KINDS), ("--backends", self.backends, BACKENDS)):
-            bad = [v for v in values if v not in known]
-            if bad or not values:
-                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
-
-    @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        """The command-line options of this study."""
-        p.add_argument("--trials", type=int, default=100, help="seeds per scenario and radius")
-        p.add_argument("--radii", nargs="+", type=float, default=[0.1, 0.3], help="visit radii")
-        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
-        p.add_argument("--backends", nargs="+", default=["clarabel"], choices=list(BACKENDS))
-
-    @classmethod
-    def from_args(cls, ns: argparse.Namespace) -> Options:
-        """The options from parsed arguments."""
-        return cls(int(ns.trials), tuple(ns.radii), tuple(ns.kinds), tuple(ns.backends))
+    trials: int = option(100, Count("--trials", "seeds per scenario and radius"))
+    radii: tuple[float, ...] = option((0.1, 0.3), Positives("--radii", "visit radii"))
+    kinds: tuple[str, ...] = option(KINDS, Choices("--kinds", "scenarios", known=KINDS))
+    backends: tuple[str, ...] = option(("clarabel",), Choices("--backends", known=BACKENDS))
 
 
 def params(options: Options) -> list[dict[str, Any]]:
@@ -182,36 +139,7 @@ def params(options: Options) -> list[dict[str, Any]]:
     ]
 
 
-def main(run: RunOptions, options: Options) -> list[Path]:
-    """Run the study into ``run.out``: ``guaranteed_visits.jsonl``, the summary and its table."""
-    out = run.prepare()
-    with run.executor() as ex:
-        rows = run_trials(
-            TABLE,
-            params(options),
-            out,
-            executor=ex,
-            progress=not run.quiet,
-            label="guaranteed_visits",
-            resume=not run.fresh,
-        )
-    table = summarise(rows)
-    text = markdown(table)
-    if not run.quiet:
-        print(text)
-    return [TABLE.path(out), *write_summary(out, "guaranteed_visits", table, text)]
-
-
 if __name__ == "__main__":
-    from studies.cli import main as cli_main
+    from studies.cli import run_script
 
-    sys.exit(
-        cli_main(
-            [
-                "guaranteed_visits",
-                "--out",
-                str(Path(__file__).parent / "results" / "guaranteed_visits"),
-                *sys.argv[1:],
-            ]
-        )
-    )
+    run_script("guaranteed_visits", __file__)

@@ -1,21 +1,29 @@
-"""Options every study takes (output directory, workers, Dask, resume, verify), checked once.
+"""Options every study takes (output directory, workers, Dask, resume, verify), checked once, and the
+one way a study of trials runs into its directory.
 
 Each study adds a frozen dataclass of its own options; both kinds validate themselves on construction
 and raise :class:`~pmht_opt.exceptions.ConfigError` naming the command-line option, so a bad input stops
-the run before any work starts.
+the run before any work starts. A study's own options derive from :class:`StudyOptions` and declare each
+field with its command-line form (:func:`option` with :class:`Count`, :class:`Choices`,
+:class:`Positives` or :class:`Without`), so every study words its checks and its options alike.
 """
 
 from __future__ import annotations
 
+import argparse
 import concurrent.futures as cf
 import contextlib
+import dataclasses
+import math
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Self
 
 from pmht_opt.exceptions import ConfigError
-from studies.trials import check_dask_address, dask_executor, local_executor
+from studies.executors import check_dask_address, dask_executor, local_executor
+from studies.trials import Row, TrialTable, run_trials
 
 
 def positive_int(option: str, value: object, *, minimum: int = 1) -> int:
@@ -24,6 +32,150 @@ def positive_int(option: str, value: object, *, minimum: int = 1) -> int:
         what = "a positive integer" if minimum == 1 else f"an integer >= {minimum}"
         raise ConfigError(f"{option}: expected {what}, got {value!r}.")
     return value
+
+
+def check_choices(option: str, values: Sequence[str], known: Iterable[str]) -> None:
+    """Raise :class:`ConfigError` naming ``option`` unless ``values`` is a non-empty selection of ``known``.
+
+    argparse already restricts each value to its ``choices``; this check also holds for options built
+    in code, where nothing else would stop a misspelt name before the first trial.
+    """
+    known = tuple(known)
+    if not values or any(v not in known for v in values):
+        raise ConfigError(f"{option}: expected some of {', '.join(known)}, got {list(values)}.")
+
+
+@dataclass(frozen=True)
+class Option:
+    """How one field of a study's options is given on the command line, checked and read back.
+
+    Declared with the field (:func:`option`), so a study states each of its options once: the flag,
+    its help, the check and the default all come from that one declaration.
+    """
+
+    flag: str
+    help: str | None = None
+
+    @property
+    def dest(self) -> str:
+        """The attribute argparse stores the value in."""
+        return self.flag.lstrip("-").replace("-", "_")
+
+    def add(self, p: argparse.ArgumentParser, default: Any) -> None:
+        """Add the option to ``p``; ``default`` is the field's default."""
+        raise NotImplementedError
+
+    def check(self, value: Any) -> None:
+        """Raise :class:`ConfigError` naming the flag when ``value`` is out of range."""
+
+    def read(self, given: Any) -> Any:
+        """The field's value from what argparse parsed."""
+        return given
+
+
+@dataclass(frozen=True)
+class Count(Option):
+    """An integer of at least ``minimum``."""
+
+    minimum: int = 1
+
+    def add(self, p: argparse.ArgumentParser, default: Any) -> None:
+        """``FLAG N``."""
+        p.add_argument(self.flag, type=int, default=default, help=self.help)
+
+    def check(self, value: Any) -> None:
+        """:func:`positive_int`."""
+        positive_int(self.flag, value, minimum=self.minimum)
+
+
+@dataclass(frozen=True)
+class Choices(Option):
+    """One or more of ``known`` (by default the field's default; ``installed`` computes it when the
+    command runs instead, for choices that depend on what is installed)."""
+
+    known: tuple[str, ...] = ()
+    installed: Callable[[], tuple[str, ...]] | None = None
+
+    def add(self, p: argparse.ArgumentParser, default: Any) -> None:
+        """``FLAG NAME [NAME ...]``, restricted to ``known``."""
+        given = None if self.installed is not None else list(default)
+        p.add_argument(self.flag, nargs="+", default=given, choices=list(self.known), help=self.help)
+
+    def check(self, value: Any) -> None:
+        """:func:`check_choices`."""
+        check_choices(self.flag, value, self.known)
+
+    def read(self, given: Any) -> Any:
+        """A tuple of the names given, or of those installed."""
+        if self.installed is not None and not given:
+            return self.installed()
+        return tuple(given)
+
+
+@dataclass(frozen=True)
+class Positives(Option):
+    """One or more positive finite numbers."""
+
+    def add(self, p: argparse.ArgumentParser, default: Any) -> None:
+        """``FLAG X [X ...]``."""
+        p.add_argument(self.flag, nargs="+", type=float, default=list(default), help=self.help)
+
+    def check(self, value: Any) -> None:
+        """Every value finite and positive, and at least one."""
+        if not value or any(not (math.isfinite(v) and v > 0) for v in value):
+            raise ConfigError(f"{self.flag}: expected positive numbers, got {list(value)}.")
+
+    def read(self, given: Any) -> Any:
+        """A tuple of floats."""
+        return tuple(float(v) for v in given)
+
+
+@dataclass(frozen=True)
+class Without(Option):
+    """A ``--no-...`` flag that turns off a field that is on by default."""
+
+    def add(self, p: argparse.ArgumentParser, default: Any) -> None:
+        """``--no-...``, no value."""
+        p.add_argument(self.flag, action="store_true", help=self.help)
+
+    def read(self, given: Any) -> Any:
+        """On unless the flag was given."""
+        return not given
+
+
+def option(default: Any, spec: Option) -> Any:
+    """A field of a study's options (a :class:`StudyOptions`): its default and its command-line form."""
+    return dataclasses.field(default=default, metadata={"option": spec})
+
+
+@dataclass(frozen=True)
+class StudyOptions:
+    """Base of a study's own options, whose fields are declared with :func:`option`.
+
+    Construction checks every field (so options built in code are held to what the command line is),
+    :meth:`add_arguments` adds them to the study's parser in the order declared, and :meth:`from_args`
+    reads them back.
+    """
+
+    def __post_init__(self) -> None:
+        for name, spec in self._options():
+            spec.check(getattr(self, name))
+
+    @classmethod
+    def _options(cls) -> list[tuple[str, Option]]:
+        return [(f.name, f.metadata["option"]) for f in dataclasses.fields(cls) if "option" in f.metadata]
+
+    @classmethod
+    def add_arguments(cls, p: argparse.ArgumentParser) -> None:
+        """The command-line options of this study."""
+        defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+        for name, spec in cls._options():
+            spec.add(p, defaults[name])
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> Self:
+        """The options from parsed arguments."""
+        return cls(**{name: spec.read(getattr(ns, spec.dest)) for name, spec in cls._options()})
 
 
 def prepare_dir(option: str, path: Path) -> Path:
@@ -83,6 +235,32 @@ class RunOptions:
         if self.verify and self.fresh:
             raise ConfigError("--verify compares with the stored results; it cannot be used with --fresh.")
 
+    @staticmethod
+    def add_arguments(p: argparse.ArgumentParser) -> None:
+        """The command-line options every study takes."""
+        p.add_argument("--out", type=Path, default=Path("study-results"), help="directory for the results")
+        p.add_argument("--workers", type=int, default=1, help="parallel worker processes (default 1: inline)")
+        p.add_argument(
+            "--dask-scheduler",
+            default=None,
+            metavar="ADDRESS",
+            help="run the trials on the Dask cluster at ADDRESS (tcp://host:port); needs the dask extra",
+        )
+        p.add_argument("--fresh", action="store_true", help="start the results file afresh (default: resume)")
+        p.add_argument("--quiet", action="store_true", help="no progress bar and no printed tables")
+        p.add_argument(
+            "--verify",
+            type=int,
+            default=0,
+            metavar="K",
+            help="run K stored trials again and compare them with their rows instead of running the study",
+        )
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> RunOptions:
+        """The options from parsed arguments (each field is the option of the same name)."""
+        return cls(**{f.name: getattr(ns, f.name) for f in dataclasses.fields(cls)})
+
     def prepare(self) -> Path:
         """The output directory, created and checked to be writable."""
         return prepare_dir("--out", self.out)
@@ -99,3 +277,32 @@ class RunOptions:
             yield ex
         finally:
             ex.shutdown(wait=False, cancel_futures=True)
+
+    def run_trials(self, table: TrialTable, trials: Sequence[Mapping[str, Any]]) -> tuple[Path, list[Row]]:
+        """Run ``trials`` of ``table`` into the output directory as these options say (executor,
+        progress bar, resume or afresh); the directory and the rows, in the order of ``trials``."""
+        out = self.prepare()
+        with self.executor() as ex:
+            rows = run_trials(
+                table,
+                trials,
+                out,
+                executor=ex,
+                progress=not self.quiet,
+                label=table.name,
+                resume=not self.fresh,
+            )
+        return out, rows
+
+    def publish(
+        self, table: TrialTable, out: Path, summary: Sequence[Any], text: str, header: str = ""
+    ) -> list[Path]:
+        """Print the markdown ``text`` (unless quiet) and write the summary files of ``table``
+        (:func:`studies.report.write_summary`); the paths of the results file and of those written."""
+        # pandas comes with the report: imported only once a study has run, so that a missing extra is
+        # reported by the command, not by an import.
+        from studies.report import write_summary
+
+        if not self.quiet:
+            print(text)
+        return [table.path(out), *write_summary(out, table.name, summary, text, header)]

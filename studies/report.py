@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +55,18 @@ def summarise(values: Iterable[Any]) -> dict[str, float]:
     if not vals:
         return {"mean": math.nan, "median": math.nan, "max": math.nan, "n": 0}
     return {"mean": sum(vals) / len(vals), "median": median(vals), "max": max(vals), "n": len(vals)}
+
+
+#: A markdown table's columns: each column's heading, and how a row (a summary's dict) shows in it.
+Columns = Sequence[tuple[str, Callable[[Mapping[str, Any]], object]]]
+
+
+def markdown_table(columns: Columns, rows: Iterable[Mapping[str, Any]]) -> str:
+    """``rows`` as a markdown table of ``columns``: the headings, their rule, then one line per row (each
+    cell as ``str`` shows it)."""
+    lines = ["| " + " | ".join(h for h, _ in columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(str(cell(r)) for _, cell in columns) + " |" for r in rows]
+    return "\n".join(lines)
 
 
 def write_text(path: Path, text: str) -> Path:

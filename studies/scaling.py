@@ -42,7 +42,6 @@ from __future__ import annotations
 import argparse
 import concurrent.futures as cf
 import dataclasses
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -245,8 +244,6 @@ def main(run_options: RunOptions, options: Options) -> list[Path]:
 
 
 if __name__ == "__main__":
-    from studies.cli import main as cli_main
+    from studies.cli import run_script
 
-    sys.exit(
-        cli_main(["scaling", "--out", str(Path(__file__).parent / "results" / "scaling"), *sys.argv[1:]])
-    )
+    run_script("scaling", __file__)

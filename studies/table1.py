@@ -30,8 +30,6 @@ time includes the ordering it smooths, as in the paper.
 
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -45,10 +43,9 @@ from pmht_opt.ordering import TourResult
 from pmht_opt.planner import PMHTConfig, plan_pmht
 from pmht_opt.result import PlanResult, excursion
 from pmht_opt.scenario import Scenario, paper_scenario
-from studies.options import RunOptions, positive_int
-from studies.report import EXCURSION_LIMIT, frame, summarise, write_summary
-from studies.store import Schema
-from studies.trials import Check, TrialTable, run_trials
+from studies.options import Choices, Count, RunOptions, StudyOptions, Without, option
+from studies.report import EXCURSION_LIMIT, Columns, frame, markdown_table, summarise
+from studies.trials import TIME_CHECKS, TIME_COLUMNS, TrialTable
 
 #: The coverage radius the table reports (the scenarios' default sensor footprint).
 DEFAULT_RADIUS = 0.3
@@ -141,28 +138,18 @@ def trial(kind: str, seed: int, method: str, horizon: int) -> dict[str, Any]:
     return row
 
 
-TABLE = TrialTable(
-    name="table1",
-    fn=trial,
-    schema=Schema(
-        params={"kind": "str", "seed": "int", "method": "str", "horizon": "int"},
-        values={
-            "distance": "float",
-            "coverage": "float",
-            "excursion": "float",
-            "locales_per_platform": "list",
-            "cpu": "float",
-            "wall": "float",
-            "paths": "list?",
-            "paths_5": "list?",
-            "paths_20": "list?",
-        },
-    ),
-    checks={
-        "cpu": Check("skip", reason="CPU time differs from run to run"),
-        "wall": Check("skip", reason="wall-clock time differs from run to run"),
-    },
-)
+#: What a trial records: the plan's (or tour's) measures, its times and, for the figures' seed, its paths.
+RESULTS = {
+    "distance": "float",
+    "coverage": "float",
+    "excursion": "float",
+    "locales_per_platform": "list",
+    **TIME_COLUMNS,
+    "paths": "list?",
+    "paths_5": "list?",
+    "paths_20": "list?",
+}
+TABLE = TrialTable.of("table1", trial, RESULTS, TIME_CHECKS)
 
 
 def _rounded(line: np.ndarray) -> list[list[float]]:
@@ -210,23 +197,25 @@ def _num(x: float, fmt: str) -> str:
     return "—" if not np.isfinite(x) else format(x, fmt)
 
 
+#: Table 1 side by side with the paper's numbers, plus the columns the paper lacked.
+COLUMNS: Columns = (
+    ("scenario", lambda s: s["scenario"]),
+    ("method", lambda s: METHODS[s["method"]]),
+    ("trials", lambda s: f"{s['trials']}" + (f" ({s['failed']} failed)" if s["failed"] else "")),
+    ("distance: mean (sd)", lambda s: f"{_num(s['mean_distance'], '.1f')} ({_num(s['sd_distance'], '.1f')})"),
+    ("median", lambda s: _num(s["median_distance"], ".1f")),
+    ("max", lambda s: _num(s["max_distance"], ".1f")),
+    ("paper", lambda s: _num(s["paper_distance"], ".1f")),
+    ("CPU s: mean", lambda s: _num(s["mean_cpu"], ".2f")),
+    ("paper", lambda s: _num(s["paper_cpu"], ".1f")),
+    (f"coverage at {DEFAULT_RADIUS}", lambda s: _num(s["mean_coverage"], ".3f")),
+    ("runs leaving area by > 1", lambda s: s["left_area"]),
+)
+
+
 def markdown(table: Sequence[Mapping[str, Any]]) -> str:
     """Table 1 side by side with the paper's numbers, plus the columns the paper lacked."""
-    lines = [
-        "| scenario | method | trials | distance: mean (sd) | median | max | paper | CPU s: mean | paper "
-        f"| coverage at {DEFAULT_RADIUS} | runs leaving area by > 1 |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for s in table:
-        failed = f" ({s['failed']} failed)" if s["failed"] else ""
-        lines.append(
-            f"| {s['scenario']} | {METHODS[s['method']]} | {s['trials']}{failed} "
-            f"| {_num(s['mean_distance'], '.1f')} ({_num(s['sd_distance'], '.1f')}) "
-            f"| {_num(s['median_distance'], '.1f')} | {_num(s['max_distance'], '.1f')} "
-            f"| {_num(s['paper_distance'], '.1f')} | {_num(s['mean_cpu'], '.2f')} "
-            f"| {_num(s['paper_cpu'], '.1f')} | {_num(s['mean_coverage'], '.3f')} | {s['left_area']} |"
-        )
-    return "\n".join(lines)
+    return markdown_table(COLUMNS, table)
 
 
 # ------------------------------------------------------------------ figures
@@ -244,9 +233,9 @@ def _paths(
 def figures(out_dir: Path, rows: Sequence[Mapping[str, Any]], methods: Sequence[str]) -> list[Path]:
     """Figure 1 (PMHT paths at iterations 5, 20 and the last), Figures 2-4 (every method on the
     seed-0 trial of A, B, C) and Figure 5 (histogram of locales per platform), from the trials' rows."""
-    from pmht_opt.plotting import _pyplot, draw_paths
+    from pmht_opt.plotting import draw_paths, pyplot
 
-    plt = _pyplot()
+    plt = pyplot()
     written = []
     sc = paper_scenario("A", seed=FIGURE_SEED)
     panels = [
@@ -313,38 +302,14 @@ def _save(fig: Any, path: Path, plt: Any) -> Path:
 
 
 @dataclass(frozen=True)
-class Options:
+class Options(StudyOptions):
     """Options of ``pmht-opt study table1``."""
 
-    trials: int = 100
-    methods: tuple[str, ...] = tuple(METHODS)
-    kinds: tuple[str, ...] = KINDS
-    horizon: int = HORIZON
-    figures: bool = True
-
-    def __post_init__(self) -> None:
-        positive_int("--trials", self.trials)
-        positive_int("--horizon", self.horizon, minimum=2)
-        for name, values, known in (("--methods", self.methods, METHODS), ("--kinds", self.kinds, KINDS)):
-            bad = [v for v in values if v not in known]
-            if bad or not values:
-                raise ConfigError(f"{name}: expected some of {', '.join(known)}, got {list(values)}.")
-
-    @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        """The command-line options of this study."""
-        p.add_argument("--trials", type=int, default=100, help="trials (seeds) per scenario (default 100)")
-        p.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
-        p.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS), help="scenarios")
-        p.add_argument("--horizon", type=int, default=HORIZON, help="time steps (default: the paper's 500)")
-        p.add_argument("--no-figures", action="store_true", help="skip the figures")
-
-    @classmethod
-    def from_args(cls, ns: argparse.Namespace) -> Options:
-        """The options from parsed arguments."""
-        return cls(
-            int(ns.trials), tuple(ns.methods), tuple(ns.kinds), int(ns.horizon), figures=not ns.no_figures
-        )
+    trials: int = option(100, Count("--trials", "trials (seeds) per scenario (default 100)"))
+    methods: tuple[str, ...] = option(tuple(METHODS), Choices("--methods", known=tuple(METHODS)))
+    kinds: tuple[str, ...] = option(KINDS, Choices("--kinds", "scenarios", known=KINDS))
+    horizon: int = option(HORIZON, Count("--horizon", "time steps (default: the paper's 500)", minimum=2))
+    figures: bool = option(True, Without("--no-figures", "skip the figures"))
 
 
 def params(options: Options) -> list[dict[str, Any]]:
@@ -361,30 +326,17 @@ def params(options: Options) -> list[dict[str, Any]]:
 def main(run: RunOptions, options: Options) -> list[Path]:
     """Run the study into ``run.out``: ``table1.jsonl`` (one row per trial), ``table1.md``,
     ``table1_summary.json`` and the figures; return the paths written."""
-    out = run.prepare()
-    with run.executor() as ex:
-        rows = run_trials(
-            TABLE,
-            params(options),
-            out,
-            executor=ex,
-            progress=not run.quiet,
-            label="table1",
-            resume=not run.fresh,
-        )
+    out, rows = run.run_trials(TABLE, params(options))
     table = summary(rows)
     n = options.trials
     header = f"Table 1 over {n} trials per scenario (seeds 0..{n - 1}); the paper: 100 trials.\n\n"
-    text = markdown(table)
-    if not run.quiet:
-        print(text)
-    written = [TABLE.path(out), *write_summary(out, "table1", table, text, header)]
+    written = run.publish(TABLE, out, table, markdown(table), header)
     if options.figures:
         written += figures(out, rows, list(options.methods))
     return written
 
 
 if __name__ == "__main__":
-    from studies.cli import main as cli_main
+    from studies.cli import run_script
 
-    sys.exit(cli_main(["table1", "--out", str(Path(__file__).parent / "results" / "table1"), *sys.argv[1:]]))
+    run_script("table1", __file__)

@@ -26,19 +26,23 @@ randomness only from the seeds in their parameters.
 from __future__ import annotations
 
 import concurrent.futures as cf
-import contextlib
+import inspect
 import math
 import queue
-import socket
 import sys
-from collections.abc import Callable, Iterator, Mapping, Sequence
+import typing
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlsplit
 
-from pmht_opt.exceptions import ConfigError, MissingDependencyError, SolverError
-from studies.pool import WorkerPool
+from pmht_opt.exceptions import ConfigError, SolverError
+
+# The executors live in their own module; they are named here too, where the trials that run on them are.
+from studies.executors import InlineExecutor as InlineExecutor
+from studies.executors import check_dask_address as check_dask_address
+from studies.executors import dask_executor as dask_executor
+from studies.executors import local_executor as local_executor
 from studies.provenance import provenance
 from studies.store import ResultsFile, Row, Schema, load, trial_id
 
@@ -79,6 +83,25 @@ class Check:
         return _agree(stored, fresh, self.rtol if self.kind == "close" else 0.0, self.atol)
 
 
+#: The CPU and wall seconds of a trial that times its method, and how ``--verify`` treats them: as
+#: measurements of the machine at the time, never the same twice.
+TIME_COLUMNS = {"cpu": "float", "wall": "float"}
+TIME_CHECKS: Mapping[str, Check] = {
+    "cpu": Check("skip", reason="CPU time differs from run to run"),
+    "wall": Check("skip", reason="wall-clock time differs from run to run"),
+}
+#: A number computed from a solver's iterates: another run may differ in its last digits.
+ITERATES = Check("close", rtol=1e-6, atol=1e-9, reason="last digits of the solvers' iterates")
+#: The project's error a trial may end in (its class and message; ``None`` for a trial that planned)...
+ERROR_COLUMNS = {"raised": "str?", "message": "str?"}
+#: ... and how ``--verify`` treats the error's message (whose figures come from the solvers' iterates)
+#: and the ``seconds`` such a trial took.
+OUTCOME_CHECKS: Mapping[str, Check] = {
+    "seconds": Check("skip", reason="wall time"),
+    "message": Check("skip", reason="figures in messages carry the solvers' last digits"),
+}
+
+
 def _agree(a: Any, b: Any, rtol: float, atol: float) -> bool:
     if isinstance(a, list) and isinstance(b, list):
         return len(a) == len(b) and all(_agree(x, y, rtol, atol) for x, y in zip(a, b, strict=True))
@@ -108,6 +131,30 @@ class TrialTable:
         """The results file in ``out_dir``."""
         return Path(out_dir) / f"{self.name}.jsonl"
 
+    @classmethod
+    def of(
+        cls, name: str, fn: TrialFn, values: Mapping[str, str], checks: Mapping[str, Check] | None = None
+    ) -> TrialTable:
+        """The table of trial function ``fn``, whose parameters are the schema's: their names and types
+        are stated once, in its signature (``int``, ``float``, ``str`` or ``bool``)."""
+        return cls(name, fn, Schema(params=signature_columns(fn), values=values), dict(checks or {}))
+
+
+#: The column type of each type a trial's parameter may be annotated with.
+_PARAM_TYPES: Mapping[object, str] = {int: "int", float: "float", str: "str", bool: "bool"}
+
+
+def signature_columns(fn: TrialFn) -> dict[str, str]:
+    """``fn``'s parameters as schema columns, in order; :class:`ConfigError` for one of another type."""
+    hints = typing.get_type_hints(fn)
+    out = {}
+    for name in inspect.signature(fn).parameters:
+        kind = _PARAM_TYPES.get(hints.get(name))
+        if kind is None:
+            raise ConfigError(f"trial parameter {name!r}: annotate it as int, float, str or bool.")
+        out[name] = kind
+    return out
+
 
 @dataclass(frozen=True)
 class TrialError:
@@ -135,95 +182,6 @@ def call_trial(fn: TrialFn, params: Mapping[str, Any]) -> Mapping[str, Any] | Tr
         return TrialError(type(err).__name__, str(err) or type(err).__name__)
     except Exception as err:  # the row records it; the study goes on
         return TrialError(type(err).__name__, str(err) or type(err).__name__)
-
-
-class InlineExecutor(cf.Executor):
-    """Runs each task when it is submitted, in this process (one worker, no pickling)."""
-
-    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> cf.Future[Any]:
-        """Run ``fn`` now; its exception (never a ``KeyboardInterrupt``) goes into the future."""
-        fut: cf.Future[Any] = cf.Future()
-        try:
-            fut.set_result(fn(*args, **kwargs))
-        except Exception as err:
-            fut.set_exception(err)
-        return fut
-
-
-def local_executor(workers: int, *, max_tasks_per_child: int | None = None) -> cf.Executor:
-    """An inline executor for 1 worker, else a :class:`~studies.pool.WorkerPool` of spawned processes.
-
-    Spawned, not forked: the parent may hold solver threads, and OR-Tools and HiGHS cannot share a
-    process. ``max_tasks_per_child=1`` forces a fresh process per trial even for 1 worker.
-    """
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ConfigError(f"--workers: expected a positive integer, got {workers!r}.")
-    if workers == 1 and max_tasks_per_child is None:
-        return InlineExecutor()
-    return WorkerPool(workers, max_tasks_per_child=max_tasks_per_child)
-
-
-_DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx", "inproc")
-
-
-def check_dask_address(address: str) -> str:
-    """``address`` as a Dask scheduler address (``tcp://host:port``; a bare ``host:port`` means tcp).
-
-    Raises
-    ------
-    ConfigError
-        Not of that form (checked before any connection is tried).
-    """
-    text = address.strip()
-    full = text if "://" in text else f"tcp://{text}"
-    parts = urlsplit(full)
-    try:
-        port = parts.port
-    except ValueError:
-        port = None
-    if parts.scheme not in _DASK_SCHEMES or not parts.hostname or (parts.scheme != "inproc" and not port):
-        raise ConfigError(f"--dask-scheduler: expected an address such as tcp://host:8786, got {address!r}.")
-    return full
-
-
-@contextlib.contextmanager
-def dask_executor(
-    address: str | None = None, *, connect_timeout: float = 5.0, **cluster: Any
-) -> Iterator[cf.Executor]:
-    """An executor on a Dask cluster: the scheduler at ``address``, or a new ``LocalCluster(**cluster)``.
-
-    A malformed address fails at once; a well-formed one that does not answer within
-    ``connect_timeout`` seconds raises :class:`ConfigError`. Needs the ``dask`` extra.
-    """
-    try:
-        from distributed import Client, LocalCluster
-    except ModuleNotFoundError:
-        raise MissingDependencyError(
-            "Dask execution needs dask.distributed; install the extra: pip install '.[dask]'."
-        ) from None
-    local = None
-    if address is not None:
-        address = check_dask_address(address)
-        parts = urlsplit(address)
-        if parts.scheme == "tcp" and parts.hostname and parts.port:
-            try:  # a refused or unreachable port fails here in milliseconds, not after Dask's retries
-                socket.create_connection((parts.hostname, parts.port), timeout=connect_timeout).close()
-            except OSError as err:
-                raise ConfigError(f"--dask-scheduler {address}: cannot connect ({err}).") from None
-    try:
-        if address is None:
-            local = LocalCluster(**cluster)
-            client = Client(local)
-        else:
-            client = Client(address, timeout=f"{connect_timeout}s")
-    except (OSError, TimeoutError) as err:
-        raise ConfigError(f"--dask-scheduler {address}: cannot connect ({err}).") from None
-    try:
-        yield client.get_executor()
-    finally:
-        client.close()
-        if local is not None:
-            local.close()
 
 
 def _is_crash(err: BaseException) -> bool:

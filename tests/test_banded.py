@@ -13,21 +13,7 @@ import scipy.linalg
 from solvers.banded import BandedSmoother, banded_smoother
 from solvers.exceptions import ProblemError
 from solvers.kalman import rts_smoother
-
-E1 = np.array([1.0, 0.0, 0.0])
-
-
-def ca_model(dt: float, q: float) -> tuple[np.ndarray, np.ndarray]:
-    """Constant-acceleration ``F`` and ``Q`` of one axis."""
-    F = np.array([[1.0, dt, dt**2 / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
-    Q = q * np.array(
-        [
-            [dt**5 / 20, dt**4 / 8, dt**3 / 6],
-            [dt**4 / 8, dt**3 / 3, dt**2 / 2],
-            [dt**3 / 6, dt**2 / 2, dt],
-        ]
-    )
-    return F, Q
+from studies.smoother_reference import E1, ca_model, rts_extended
 
 
 def make_batch(
@@ -196,49 +182,6 @@ def lstsq_means(
     for t in range(1, T + 1):
         out[t] = F @ out[t - 1] + L @ u[t - 1]
     return out
-
-
-def _ld_solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``A^-1 B`` by Gauss-Jordan with partial pivoting, in the dtype of the inputs."""
-    n = A.shape[0]
-    M = np.concatenate([A, B], axis=1)
-    for c in range(n):
-        p = c + int(np.argmax(np.abs(M[c:, c])))
-        M[[c, p]] = M[[p, c]]
-        M[c] = M[c] / M[c, c]
-        for i in range(n):
-            if i != c:
-                M[i] = M[i] - M[i, c] * M[c]
-    return M[:, n:]
-
-
-def rts_extended(
-    F: np.ndarray, Q: np.ndarray, h: np.ndarray, r: float, x0: np.ndarray, y: np.ndarray, w: np.ndarray
-) -> np.ndarray:
-    """The RTS smoother of one system run in ``np.longdouble`` (64-bit mantissa on x86-64)."""
-    ld = np.longdouble
-    F, Q, h = F.astype(ld), Q.astype(ld), h.astype(ld)
-    T, n = len(w), F.shape[0]
-    m = x0.astype(ld)
-    P = np.zeros((n, n), dtype=ld)
-    mf, Pf, mp, Pp = [m], [P], [m], [P]
-    for t in range(T):
-        m = F @ m
-        P = F @ P @ F.T + Q
-        mp.append(m)
-        Pp.append(P)
-        if w[t] > 0:
-            Ph = P @ h
-            g = Ph / (h @ Ph + ld(r) / ld(w[t]))
-            m = m + g * (ld(y[t]) - h @ m)
-            P = P - np.outer(g, Ph)
-        mf.append(m)
-        Pf.append(P)
-    ms = [mf[T]]
-    for t in range(T - 1, -1, -1):
-        G = _ld_solve(Pp[t + 1], F @ Pf[t]).T  # Pf F' Pp^-1
-        ms.append(mf[t] + G @ (ms[-1] - mp[t + 1]))
-    return np.array(ms[::-1], dtype=ld)
 
 
 # -- agreement with rts_smoother ----------------------------------------------------------------

@@ -134,7 +134,7 @@ def test_outputs_are_checked_before_planning(
     def never(*args: Any, **kwargs: Any) -> None:
         raise AssertionError("planned before checking the outputs")
 
-    monkeypatch.setattr(cli, "plan_mission", never)
+    monkeypatch.setattr(cli.commands, "plan_mission", never)
     argv = ["plan", str(path), *[o.format(tmp=tmp_path) for o in option]]
     assert main(argv) == 2
     err = capsys.readouterr().err

@@ -6,6 +6,7 @@ from __future__ import annotations
 import cvxpy as cp
 import numpy as np
 import pytest
+from conftest import VIOLATION_TOL
 
 from pmht_opt import (
     AccelLimit,
@@ -31,11 +32,6 @@ from pmht_opt.estep import estep
 from pmht_opt.model import POS
 from pmht_opt.mstep import MStepData, make_mstep, mstep_objective
 
-#: Largest violation accepted on a returned plan, per backend. OSQP stops ADMM at 1e-5 on
-#: constrained M-steps (see mstep.tuning.CONSTRAINED_DEFAULTS); its polygons are inner approximations, so
-#: the exact constraint is usually met with room to spare, but a step left unpolished may miss it
-#: by about the ADMM tolerance.
-VIOLATION_TOL = {"clarabel": 1e-6, "cvxpy": 1e-6, "osqp": 1e-4}
 ITERATIONS = {"clarabel": 6, "osqp": 4, "cvxpy": 6}
 
 

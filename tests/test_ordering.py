@@ -7,9 +7,11 @@ chain legs (the GA uses a different identity) and checked against :func:`tour_di
 
 from __future__ import annotations
 
+import importlib.util
 import itertools
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -27,6 +29,7 @@ from pmht_opt.ordering import (
     solve_ortools,
     tour_distance,
 )
+from pmht_opt.ordering.pyvrp_ import solve_pyvrp
 from pmht_opt.scenario import Scenario, paper_scenario
 
 #: Agreement of a solver's optimum with the exhaustive one (floating point sums in different orders).
@@ -457,14 +460,28 @@ def test_ortools_bad_parameters(kwargs: dict, field: str) -> None:
         solve_ortools(instance(8, 2, 0), **kwargs)
 
 
-def test_missing_ortools_raises_missing_dependency(monkeypatch: pytest.MonkeyPatch) -> None:
-    for name in [k for k in sys.modules if k == "ortools" or k.startswith("ortools.")]:
+@pytest.mark.parametrize(
+    ("package", "solve", "options"),
+    [
+        ("ortools", solve_ortools, {"time_limit": 0.1}),
+        pytest.param(
+            "pyvrp",
+            solve_pyvrp,
+            {"iterations": 10},
+            marks=pytest.mark.skipif(importlib.util.find_spec("pyvrp") is None, reason="pyvrp not installed"),
+        ),
+    ],
+)
+def test_a_missing_package_raises_missing_dependency(
+    monkeypatch: pytest.MonkeyPatch, package: str, solve: Any, options: dict[str, Any]
+) -> None:
+    for name in [k for k in sys.modules if k == package or k.startswith(f"{package}.")]:
         monkeypatch.setitem(sys.modules, name, None)
-    monkeypatch.setitem(sys.modules, "ortools", None)
-    with pytest.raises(MissingDependencyError, match=r'pip install "pmht-opt\[ortools\]"'):
-        solve_ortools(instance(5, 2, 0), time_limit=0.1)
+    monkeypatch.setitem(sys.modules, package, None)
+    with pytest.raises(MissingDependencyError, match=rf'pip install "pmht-opt\[{package}\]"'):
+        solve(instance(5, 2, 0), **options)
     with pytest.raises(MissingDependencyError):
-        order_locales(instance(5, 2, 0), method="ortools", time_limit=0.1)
+        order_locales(instance(5, 2, 0), method=package, **options)
 
 
 # ------------------------------------------------------------------ dispatch

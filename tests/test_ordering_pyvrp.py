@@ -1,17 +1,16 @@
 """The PyVRP orderer: exhaustive optimum on the small instances, determinism, parameters.
 
-The reference instances and the exhaustive search are those of ``test_ordering``.
+The reference instances and the exhaustive search are those of ``test_ordering``, which also checks
+the error of a missing PyVRP along with that of a missing OR-Tools.
 """
 
 from __future__ import annotations
-
-import sys
 
 import numpy as np
 import pytest
 from test_ordering import RANDOM_SMALL, SMALL, assert_valid, brute_force, instance
 
-from pmht_opt.exceptions import ConfigError, MissingDependencyError
+from pmht_opt.exceptions import ConfigError
 from pmht_opt.ordering import order_locales, solve_pyvrp
 from pmht_opt.scenario import paper_scenario
 
@@ -95,13 +94,3 @@ def test_pyvrp_stops_on_no_improvement() -> None:
 def test_pyvrp_bad_parameters(kwargs: dict, field: str) -> None:
     with pytest.raises(ConfigError, match=rf"^{field}: expected"):
         solve_pyvrp(instance(8, 2, 0), **kwargs)
-
-
-def test_missing_pyvrp_raises_missing_dependency(monkeypatch: pytest.MonkeyPatch) -> None:
-    for name in [k for k in sys.modules if k == "pyvrp" or k.startswith("pyvrp.")]:
-        monkeypatch.setitem(sys.modules, name, None)
-    monkeypatch.setitem(sys.modules, "pyvrp", None)
-    with pytest.raises(MissingDependencyError, match=r'pip install "pmht-opt\[pyvrp\]"'):
-        solve_pyvrp(instance(5, 2, 0), iterations=10)
-    with pytest.raises(MissingDependencyError):
-        order_locales(instance(5, 2, 0), method="pyvrp", iterations=10)

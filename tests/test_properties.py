@@ -179,6 +179,16 @@ JSONABLE = st.recursive(
 )
 
 
+def _file_text(data: dict[str, Any], suffix: str) -> str | None:
+    """``data`` as the text of a ``suffix`` file, or ``None`` (counted as an event) where the format
+    cannot express it."""
+    try:
+        return json.dumps(data) if suffix == ".json" else dumps(data)
+    except (TypeError, ValueError):
+        event("not expressible in the format")
+        return None
+
+
 @settings(max_examples=examples(60))
 @given(
     scenario_fields(),
@@ -190,13 +200,11 @@ def test_any_scenario_file_is_read_or_refused_naming_the_field(
 ) -> None:
     fields, _ = case
     data = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in {**fields, **noise}.items()}
+    text = _file_text(data, suffix)
+    if text is None:
+        return  # not expressible in the file format (bytes, surrogates): nothing to read
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / f"s{suffix}"
-        try:
-            text = json.dumps(data) if suffix == ".json" else dumps(data)
-        except (TypeError, ValueError):
-            event("not expressible in the format")
-            return  # not expressible in the file format (bytes, surrogates): nothing to read
         path.write_text(text, encoding="utf-8", errors="surrogatepass")
         try:
             sc = po.Scenario.load(path)
@@ -367,13 +375,11 @@ def test_the_cli_plans_or_exits_2_with_one_line(
     fields["horizon"] = fields["horizon"] if "horizon" in bad else min(fields["horizon"], 30)
     # A field left out of the file is how a file says "not given" (bounds=None in the library).
     data = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in fields.items() if v is not None}
+    text = _file_text(data, suffix)
+    if text is None:
+        return
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / f"m{suffix}"
-        try:
-            text = json.dumps(data) if suffix == ".json" else dumps(data)
-        except (TypeError, ValueError):
-            event("not expressible in the format")
-            return
         path.write_text(text, encoding="utf-8", errors="surrogatepass")
         out = Path(tmp) / "out" / "plan.json"
         argv = [

@@ -116,6 +116,17 @@ def test_file_round_trip(tmp_path: Path, suffix: str) -> None:
         ("horizon.toml", "locales = [[1.0, 2.0]]\nstarts = [[0.0, 0.0]]\nhorizon = -3\n", "horizon"),
         ("list.json", "[1, 2, 3]", "table/object"),
         ("scen.yaml", "locales: []", ".toml or .json"),
+        # Values of the wrong type or beyond what the numerics read: the message names the field.
+        ("big.json", '{"locales": [[1, 1%s]], "starts": [[0, 0]]}' % ("0" * 400), "integer beyond the float"),
+        ("big.toml", "locales = [[1, 1]]\nstarts = [[0, 0]]\nhorizon = 1%s\n" % ("0" * 400), "horizon"),
+        ("long.json", '{"locales": [[1, 1%s]], "starts": [[0, 0]]}' % ("0" * 5000), "not valid json"),
+        ("deep.json", "[" * 100_000 + "]" * 100_000, "nested too deeply"),
+        ("deep.toml", "x = " + "[" * 100_000 + "]" * 100_000, "nested too deeply"),
+        ("horizon.json", '{"locales": [[1, 1]], "starts": [[0, 0]], "horizon": "300"}', "horizon: expected"),
+        ("q.toml", 'locales = [[1, 1]]\nstarts = [[0, 0]]\nq = "1e-8"\n', "q: expected"),
+        ("bool.json", '{"locales": [[1, 1]], "starts": [[0, 0]], "dt": true}', "dt: expected"),
+        ("strs.json", '{"locales": [["1", "2"]], "starts": [[0, 0]]}', "locales: expected numbers"),
+        ("bounds.json", '{"locales": [[1, 1]], "starts": [[0, 0]], "bounds": "1234"}', "bounds: expected"),
     ],
 )
 def test_malformed_files_raise_scenario_error(tmp_path: Path, name: str, text: str, message: str) -> None:

@@ -49,28 +49,21 @@ Reader = Callable[[str, Any, Frame], Any]
 Writer = Callable[[Any, Frame], dict[str, Any]]
 
 
-def _number(field: str, value: Any, frame: Frame) -> Any:
-    return fields.number(field, value)
+def _planar(read: Callable[[str, Any], Any]) -> Reader:
+    """A reader of a parameter that the mission's frame does not change (lengths, counts, flags)."""
+
+    def reader(field: str, value: Any, frame: Frame) -> Any:
+        return read(field, value)
+
+    return reader
 
 
-def _integer(field: str, value: Any, frame: Frame) -> Any:
-    return fields.integer(field, value)
-
-
-def _boolean(field: str, value: Any, frame: Frame) -> Any:
-    return fields.boolean(field, value)
-
-
-def _per_platform(field: str, value: Any, frame: Frame) -> Any:
-    return fields.number_or_numbers(field, value)
-
-
-def _platforms(field: str, value: Any, frame: Frame) -> Any:
-    return fields.integer_or_integers(field, value)
-
-
-def _vector(field: str, value: Any, frame: Frame) -> Any:
-    return fields.vector_or_vectors(field, value)
+_number = _planar(fields.number)
+_integer = _planar(fields.integer)
+_boolean = _planar(fields.boolean)
+_per_platform = _planar(fields.number_or_numbers)
+_platforms = _planar(fields.integer_or_integers)
+_vector = _planar(fields.vector_or_vectors)
 
 
 def _point(field: str, value: Any, frame: Frame) -> Any:

@@ -9,6 +9,7 @@ then checked by the library's own constructors, with their messages.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 from pmht_opt.exceptions import ScenarioError
@@ -61,6 +62,26 @@ def string(field: str, value: Any) -> str:
     if not isinstance(value, str):
         raise ScenarioError(f"{field}: expected a string, got {describe(value)}.")
     return value
+
+
+def text(path: Path, encoding: str = "utf-8") -> str:
+    """The text of the file ``path``; :class:`ScenarioError` naming it when it cannot be read or is not
+    UTF-8 (``encoding`` may be ``"utf-8-sig"`` for files that spreadsheets write with a byte-order mark)."""
+    try:
+        return path.read_text(encoding=encoding)
+    except OSError as err:
+        raise ScenarioError(f"cannot read {str(path)!r}: {err.strerror or err}.") from None
+    except UnicodeDecodeError as err:
+        raise ScenarioError(f"{path.name}: not UTF-8 text (byte {err.start}: {err.reason}).") from None
+
+
+def keyed(where: str, table: dict[str, Any], readers: dict[str, Any], what: str = "key") -> dict[str, Any]:
+    """``table`` with each value read by the reader of its key (called with ``where.key`` and the value);
+    :class:`ScenarioError` naming the first unknown key and listing the known ones."""
+    unknown = sorted(set(table) - set(readers))
+    if unknown:
+        raise ScenarioError(f"{where}: unknown {what} {unknown[0]!r}; it takes {', '.join(readers)}.")
+    return {key: readers[key](f"{where}.{key}", value) for key, value in table.items()}
 
 
 def table(field: str, value: Any) -> dict[str, Any]:

@@ -252,12 +252,7 @@ def load_mission(path: str | Path, *, check_schedule: bool = True) -> Mission:
     suffix = path.suffix.lower()
     if suffix not in (".toml", ".json"):
         raise ScenarioError(f"{path.name}: mission files end in .toml or .json.")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as err:
-        raise ScenarioError(f"cannot read {str(path)!r}: {err.strerror or err}.") from None
-    except UnicodeDecodeError as err:
-        raise ScenarioError(f"{path.name}: not UTF-8 text (byte {err.start}: {err.reason}).") from None
+    text = fields.text(path)
     try:
         data = json.loads(text) if suffix == ".json" else tomllib.loads(text)
     except RecursionError:

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from pmht_opt.exceptions import ScenarioError
+from pmht_opt.io import fields
 from pmht_opt.io.frame import Frame
 
 _LAT = ("lat", "latitude")
@@ -46,12 +47,7 @@ def read_points(path: str | Path, frame: Frame | None = None, kind: str = "local
     path = Path(path)
     frame = frame if frame is not None else Frame()
     suffix = path.suffix.lower()
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except OSError as err:
-        raise ScenarioError(f"cannot read {str(path)!r}: {err.strerror or err}.") from None
-    except UnicodeDecodeError as err:
-        raise ScenarioError(f"{path.name}: not UTF-8 text (byte {err.start}: {err.reason}).") from None
+    text = fields.text(path, "utf-8-sig")
     if suffix == ".csv":
         return _read_csv(path.name, text, frame)
     if suffix in (".geojson", ".json"):

@@ -27,6 +27,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -100,45 +101,74 @@ def _item(
     return item
 
 
-def platform_plan(
-    result: Any,
-    platform: int,
-    origin: GeoOrigin,
-    *,
-    altitude: float = 30.0,
-    speed: float | None = None,
-    tolerance: float | None = None,
-    acceptance_radius: float = 0.0,
-    takeoff: bool | None = None,
-    land: bool = False,
-    firmware: str = "px4",
-    vehicle: str = "multirotor",
-) -> dict[str, Any]:
+@dataclass(frozen=True)
+class _Flight:
+    """How every platform's mission flies (the options of :func:`export_qgc_plan`), checked once."""
+
+    altitude: float
+    speed: float | None
+    tolerance: float | None
+    acceptance_radius: float
+    takeoff: bool | None
+    land: bool
+    firmware: str
+    vehicle: str
+
+    def __post_init__(self) -> None:
+        if self.firmware not in FIRMWARE:
+            raise ConfigError(f"firmware: expected one of {', '.join(FIRMWARE)}, got {self.firmware!r}.")
+        if self.vehicle not in VEHICLES:
+            raise ConfigError(f"vehicle: expected one of {', '.join(VEHICLES)}, got {self.vehicle!r}.")
+        for name, value in (("altitude", self.altitude), ("acceptance_radius", self.acceptance_radius)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ConfigError(f"{name}: expected a non-negative number of metres, got {value!r}.")
+
+
+def _checked_speed(speed: Any) -> float:
+    """``speed`` (m/s), given or each platform's mean, if it is a non-negative number."""
+    if not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed >= 0):
+        raise ConfigError(f"speed: expected a non-negative number of m/s, got {speed!r}.")
+    return speed
+
+
+def platform_plan(result: Any, platform: int, origin: GeoOrigin, flight: _Flight) -> dict[str, Any]:
     """The QGroundControl plan (a dict) of one platform of ``result``; see :func:`export_qgc_plan`."""
-    if firmware not in FIRMWARE:
-        raise ConfigError(f"firmware: expected one of {', '.join(FIRMWARE)}, got {firmware!r}.")
-    if vehicle not in VEHICLES:
-        raise ConfigError(f"vehicle: expected one of {', '.join(VEHICLES)}, got {vehicle!r}.")
-    for name, value in (("altitude", altitude), ("acceptance_radius", acceptance_radius)):
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-            raise ConfigError(f"{name}: expected a non-negative number of metres, got {value!r}.")
     sc = result.scenario
     path = np.asarray(result.positions[platform])
-    tol = sc.coverage_radius / 10 if tolerance is None else float(tolerance)
+    tol = sc.coverage_radius / 10 if flight.tolerance is None else float(flight.tolerance)
     if not (math.isfinite(tol) and tol > 0):
-        raise ConfigError(f"tolerance: expected a positive number of metres, got {tolerance!r}.")
+        raise ConfigError(f"tolerance: expected a positive number of metres, got {flight.tolerance!r}.")
     mine = np.flatnonzero(np.asarray(result.assignment) == platform)
     nearest = [int(np.argmin(np.hypot(*(path - sc.locales[n]).T))) for n in mine]
     steps = simplify(path, tol, keep=nearest)
     seg = np.diff(path, axis=0)
     length = float(np.hypot(seg[:, 0], seg[:, 1]).sum())
-    if speed is None:
-        speed = length / (sc.horizon * sc.dt)
-    if not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed >= 0):
-        raise ConfigError(f"speed: expected a non-negative number of m/s, got {speed!r}.")
+    speed = _checked_speed(length / (sc.horizon * sc.dt) if flight.speed is None else flight.speed)
     latlon = np.round(origin.plane.to_geodetic(path[steps]), GEO_DECIMALS)
-    flies = vehicle not in ("rover", "boat")
-    takeoff = flies if takeoff is None else takeoff
+    flies = flight.vehicle not in ("rover", "boat")
+    cruise = round(speed, 3) if speed > 0 else 1.0
+    return {
+        "fileType": "Plan",
+        "version": 1,
+        "groundStation": "pmht-opt",
+        "mission": {
+            "version": 2,
+            "firmwareType": FIRMWARE[flight.firmware],
+            "vehicleType": VEHICLES[flight.vehicle],
+            "cruiseSpeed": cruise,
+            "hoverSpeed": cruise,
+            "globalPlanAltitudeMode": 1,
+            "plannedHomePosition": [*latlon[0].tolist(), 0],
+            "items": _items(latlon, speed, flies if flight.takeoff is None else flight.takeoff, flight),
+        },
+        "geoFence": {"circles": [], "polygons": [], "version": 2},
+        "rallyPoints": {"points": [], "version": 2},
+    }
+
+
+def _items(latlon: np.ndarray, speed: float, takeoff: bool, flight: _Flight) -> list[dict[str, Any]]:
+    """The mission items (module notes) through the waypoints ``latlon`` (degrees), numbered from 1."""
+    altitude = flight.altitude
     items: list[dict[str, Any]] = []
     home = latlon[0].tolist()
     if takeoff:
@@ -152,30 +182,13 @@ def platform_plan(
     for k, (lat, lon) in enumerate(latlon.tolist()):
         if k == 0 and takeoff:
             continue  # the take-off is there
-        params = [0, acceptance_radius, 0, None, lat, lon, altitude]
+        params = [0, flight.acceptance_radius, 0, None, lat, lon, altitude]
         items.append(_item(len(items) + 1, NAV_WAYPOINT, FRAME_RELATIVE_ALT, params, altitude))
-    if land:
+    if flight.land:
         items.append(
             _item(len(items) + 1, NAV_LAND, FRAME_RELATIVE_ALT, [0, 0, 0, None, *latlon[-1].tolist(), 0], 0.0)
         )
-    cruise = round(speed, 3) if speed > 0 else 1.0
-    return {
-        "fileType": "Plan",
-        "version": 1,
-        "groundStation": "pmht-opt",
-        "mission": {
-            "version": 2,
-            "firmwareType": FIRMWARE[firmware],
-            "vehicleType": VEHICLES[vehicle],
-            "cruiseSpeed": cruise,
-            "hoverSpeed": cruise,
-            "globalPlanAltitudeMode": 1,
-            "plannedHomePosition": [*home, 0],
-            "items": items,
-        },
-        "geoFence": {"circles": [], "polygons": [], "version": 2},
-        "rallyPoints": {"points": [], "version": 2},
-    }
+    return items
 
 
 def qgc_paths(path: str | Path, n_platforms: int) -> list[Path]:
@@ -232,21 +245,10 @@ def export_qgc_plan(
     """
     if origin is None:
         raise ConfigError("origin: a QGroundControl plan needs a geo-referenced mission (an origin).")
+    flight = _Flight(altitude, speed, tolerance, acceptance_radius, takeoff, land, firmware, vehicle)
     out = []
     for m, file in enumerate(qgc_paths(path, result.scenario.n_platforms)):
-        plan = platform_plan(
-            result,
-            m,
-            origin,
-            altitude=altitude,
-            speed=speed,
-            tolerance=tolerance,
-            acceptance_radius=acceptance_radius,
-            takeoff=takeoff,
-            land=land,
-            firmware=firmware,
-            vehicle=vehicle,
-        )
+        plan = platform_plan(result, m, origin, flight)
         output_file(file).write_text(json.dumps(plan, indent=2) + "\n")
         out.append(file)
     return out

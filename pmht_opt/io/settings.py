@@ -191,10 +191,7 @@ def read_anneal(where: str, value: Any) -> Anneal:
             "iterations": fields.integer,
             "shape": fields.string,
         }
-        unknown = sorted(set(value) - set(readers))
-        if unknown:
-            raise ScenarioError(f"{where}: unknown key {unknown[0]!r}; it takes {', '.join(readers)}.")
-        return Anneal(**{k: readers[k](f"{where}.{k}", v) for k, v in value.items()})
+        return Anneal(**fields.keyed(where, value, readers))
     raise ScenarioError(
         f"{where}: expected false, [start, iterations] or a table, got {fields.describe(value)}."
     )
@@ -217,10 +214,7 @@ def read_settings(where: str, data: Any) -> PlannerSettings:
         "split": fields.string,
         "radius": fields.number,
     }
-    unknown = sorted(set(table) - set(readers))
-    if unknown:
-        raise ScenarioError(f"{where}: unknown setting {unknown[0]!r}; it takes {', '.join(readers)}.")
-    kwargs = {key: readers[key](f"{where}.{key}", value) for key, value in table.items()}
+    kwargs = fields.keyed(where, table, readers, "setting")
     if "ordering" in kwargs:
         kwargs["ordering"] = dict(kwargs["ordering"])
         if "method" in kwargs["ordering"]:

@@ -17,7 +17,6 @@ from pmht_opt import PMHTConfig, plan_pmht
 from pmht_opt.exceptions import PmhtOptError
 from studies.solver_study.backends import ACCEPT, STATUS_OK, backend_spec, error_status
 from studies.solver_study.iterates import study_scenario
-from studies.store import Schema
 from studies.trials import Check, TrialTable
 
 #: Kalman plans of this process (positions, total distance), by plan parameters: the reference of the
@@ -100,29 +99,28 @@ def plan_trial(kind: str, seed: int, backend: str, iterations: int, horizon: int
     }
 
 
-PLANS = TrialTable(
-    name="solvers_plans",
-    fn=plan_trial,
-    schema=Schema(
-        params={"kind": "str", "seed": "int", "backend": "str", "iterations": "int", "horizon": "int"},
-        values={
-            "status": "str",
-            "raw_status": "str?",
-            "message": "str?",
-            "wall_time": "float",
-            "iterations_done": "int",
-            "failed_at": "int?",
-            "estep_time": "float?",
-            "mstep_time": "float?",
-            "total_distance": "float?",
-            "kalman_distance": "float?",
-            "distance_rel_diff": "float?",
-            "max_pos_diff": "float?",
-            "mean_solver_iterations": "float?",
-            "max_solver_iterations": "int?",
-        },
-    ),
-    checks={
+#: What a plan records: its status, times and length, and how far it is from the kalman plan.
+RESULTS = {
+    "status": "str",
+    "raw_status": "str?",
+    "message": "str?",
+    "wall_time": "float",
+    "iterations_done": "int",
+    "failed_at": "int?",
+    "estep_time": "float?",
+    "mstep_time": "float?",
+    "total_distance": "float?",
+    "kalman_distance": "float?",
+    "distance_rel_diff": "float?",
+    "max_pos_diff": "float?",
+    "mean_solver_iterations": "float?",
+    "max_solver_iterations": "int?",
+}
+PLANS = TrialTable.of(
+    "solvers_plans",
+    plan_trial,
+    RESULTS,
+    {
         name: Check("skip", reason="wall-clock time differs from run to run")
         for name in ("wall_time", "estep_time", "mstep_time")
     },

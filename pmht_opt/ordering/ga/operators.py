@@ -105,12 +105,14 @@ class Move(Protocol):
 
 @dataclass(frozen=True)
 class _Fixed:
-    """A plan whose index does not depend on the parents' heads: one ``(n, G, N)`` array."""
+    """A plan whose index does not depend on the parents' heads: one ``(n, G, N)`` array. With
+    ``keeps_heads`` the children keep their parents' heads (the breaks between routes) as they are."""
 
     index: np.ndarray
+    keeps_heads: bool = False
 
     def child(self, c: int, heads: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        return self.index[c], None
+        return self.index[c], heads if self.keeps_heads else None
 
 
 @dataclass(frozen=True)
@@ -256,14 +258,6 @@ class _ExchangePlan:
 
 
 @dataclass(frozen=True)
-class _SlideWithParentBreaks:
-    index: np.ndarray
-
-    def child(self, c: int, heads: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        return self.index[c], heads
-
-
-@dataclass(frozen=True)
 class RouteExchange:
     """Two routes (uniform pair) trade their locales and the breaks follow (``Breaks.MOVED``)."""
 
@@ -272,7 +266,7 @@ class RouteExchange:
     def plan(self, rng: np.random.Generator, IJ: np.ndarray, layout: Layout) -> MovePlan:
         M = layout.M
         if M == 1:  # no pair to exchange: Kirk's slide, and the parent's (only) head
-            return _SlideWithParentBreaks(_slide(IJ, layout))
+            return _Fixed(_slide(IJ, layout), keeps_heads=True)
         pairs = np.array([(a, b) for a in range(M) for b in range(a + 1, M)], dtype=np.intp)
         return _ExchangePlan(pairs[rng.integers(0, len(pairs), size=IJ.shape[:2])], layout)
 

@@ -1,0 +1,66 @@
+"""The ``pmht-opt`` command: a thin layer over the library.
+
+Every subcommand turns its options into library calls: ``plan`` loads a mission file
+(:func:`pmht_opt.io.load_mission`), overrides its planner settings with the options given, and runs it
+with :func:`pmht_opt.io.plan_mission`; ``order`` runs :func:`pmht_opt.io.order_mission`. Outputs are
+checked (format, directory, writable) before anything is planned.
+
+The parts: :mod:`~pmht_opt.cli.parser` (the options), :mod:`~pmht_opt.cli.settings` (options onto a
+mission's settings), :mod:`~pmht_opt.cli.outputs` (checking and writing files),
+:mod:`~pmht_opt.cli.commands` (the subcommands); this module runs them and turns what they raise into
+one line and an exit status.
+
+Exit status: 0 done; 2 a bad input or a failed solve (``pmht-opt: error: ...``, one line, never a
+traceback); 130 interrupted (Ctrl-C); 141 the reader of the output went away (``pmht-opt ... | head``),
+as for a process ended by SIGPIPE.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Sequence
+
+from pmht_opt.cli import commands
+from pmht_opt.cli.parser import build_parser
+from pmht_opt.exceptions import PmhtOptError
+
+#: Exit statuses.
+EXIT_ERROR, EXIT_INTERRUPTED, EXIT_PIPE = 2, 130, 141
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null, so that the interpreter's last flush finds no closed pipe."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit status (module notes)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        if argv[:1] == ["study"]:
+            return commands.study(argv[1:])
+        try:
+            args = build_parser().parse_args(argv)
+        except SystemExit as exc:  # --help, --version, or argparse's own usage error (status 2)
+            return exc.code if isinstance(exc.code, int) else EXIT_ERROR
+        code: int = args.func(args)
+        sys.stdout.flush()
+    except PmhtOptError as err:
+        print(f"pmht-opt: error: {err}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print("pmht-opt: interrupted.", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        _silence_stdout()
+        return EXIT_PIPE
+    except OSError as err:  # a file that vanished or a full disk between the checks and the writing
+        name = f" {err.filename!r}" if err.filename else ""
+        print(f"pmht-opt: error: cannot write{name}: {err.strerror or err}.", file=sys.stderr)
+        return EXIT_ERROR
+    return code

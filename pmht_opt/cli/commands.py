@@ -1,0 +1,190 @@
+"""The subcommands of ``pmht-opt``: each turns its parsed options into library calls.
+
+Every command takes the parsed options and returns the exit status; errors are the library's own
+(:class:`~pmht_opt.exceptions.PmhtOptError`), which :func:`pmht_opt.cli.main` reports in one line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from pmht_opt.cli.outputs import Outputs, check_output, figure_formats, prepared
+from pmht_opt.cli.settings import mission_of, planner_settings
+from pmht_opt.exceptions import ConfigError, MissingDependencyError
+from pmht_opt.io import EXAMPLES, Mission, example_path, order_mission, plan_mission
+from pmht_opt.mstep import BACKENDS, available_backends
+from pmht_opt.ordering import TourResult
+from pmht_opt.result import PlanResult
+from pmht_opt.scenario import paper_scenario
+
+
+def _progress_bar(total: int, label: str, quiet: bool) -> Any:
+    """A tqdm bar on stderr when tqdm is installed (the ``studies`` extra) and wanted; else ``None``."""
+    if quiet:
+        return None
+    try:
+        from tqdm import tqdm
+    except ModuleNotFoundError:
+        return None
+    return tqdm(total=total, desc=label, file=sys.stderr)
+
+
+def plan(mission: Mission, outputs: Outputs, args: argparse.Namespace) -> PlanResult:
+    """Plan ``mission`` with a progress bar, print its report and write its outputs."""
+    s = mission.planner
+    if mission.bounds_assumed:
+        b = mission.scenario.bounds
+        assert b is not None
+        print(
+            "bounds: none given; assumed the locales' bounding box "
+            f"[{b[0]:.6g}, {b[1]:.6g}, {b[2]:.6g}, {b[3]:.6g}]"
+        )
+    snapshots = tuple(range(s.iterations + 1)) if outputs.animation is not None else ()
+    label = {"pmht": "PMHT"}.get(s.kind, s.kind)
+    bar = _progress_bar(s.iterations, f"{label} ({s.solver})", args.quiet)
+
+    def progress(iteration: int, objective: float) -> None:
+        if bar is not None:
+            bar.set_postfix_str(f"objective {objective:.6g}", refresh=False)
+            bar.update(1)
+
+    try:
+        result = plan_mission(mission, callback=progress, snapshots=snapshots)
+    finally:
+        if bar is not None:
+            bar.close()
+    report(result, mission)
+    outputs.write(result, mission, args)
+    return result
+
+
+def report(result: PlanResult, mission: Mission) -> None:
+    """Print the plan's metrics, one per line."""
+    m = result.metrics()
+    h = result.history
+    sc = result.scenario
+    u = " m" if mission.origin is not None else ""
+    rows = [
+        ("scenario", sc.name or "-"),
+        ("platforms / locales / horizon", f"{sc.n_platforms} / {sc.n_locales} / {sc.horizon} x {sc.dt:g} s"),
+        ("planner", f"{mission.planner.kind}, solver {m['solver']}"),
+        ("constraints", ", ".join(c.name for c in result.constraints) or "-"),
+        ("iterations", f"{m['iterations']}" + (" (converged)" if m["converged"] else "")),
+        ("annealing", m["anneal"]),
+        ("total distance", f"{m['total_distance']:.2f}{u}"),
+        (f"coverage within {m['coverage_radius']:g}{u}", f"{m['coverage']:.1%}"),
+        ("mean / max miss distance", f"{m['mean_miss_distance']:.3f} / {m['max_miss_distance']:.3f}{u}"),
+        ("locales per platform", " ".join(str(v) for v in m["locales_per_platform"])),
+        ("crossings between platforms", str(m["crossings"])),
+        (
+            "max speed / acceleration (positions)",
+            f"{m['max_speed']:.4g} / {m['max_acceleration']:.4g}",
+        ),
+        ("max excursion outside area", f"{m['max_excursion']:.3f}{u}"),
+        ("max constraint violation", f"{result.max_violation:.1e}"),
+        ("final EM objective", f"{m['final_objective']:.6g}"),
+        (
+            "wall time (E-step / M-step)",
+            f"{m['wall_time']:.2f} s ({h.estep_time.sum():.2f} / {h.mstep_time.sum():.2f})",
+        ),
+    ]
+    if mission.planner.return_to_base:
+        gap = float(abs(result.positions[:, -1] - sc.start_positions).max())
+        rows.insert(4, ("return to base", f"every platform ends within {gap:.1e}{u} of its start, at rest"))
+    width = max(len(k) for k, _ in rows)
+    for key, value in rows:
+        print(f"{key:<{width}}  {value}")
+
+
+def demo(args: argparse.Namespace) -> int:
+    """``pmht-opt demo``: one of the paper's scenarios."""
+    scenario = paper_scenario(args.scenario, seed=args.seed)
+    mission = Mission(scenario)
+    mission.planner = planner_settings(args, mission.planner)
+    outputs = Outputs.of(args, mission, Path(f"pmht-demo-{args.scenario}.png"))
+    plan(mission, outputs, args)
+    return 0
+
+
+def plan_file(args: argparse.Namespace) -> int:
+    """``pmht-opt plan``: a mission file or a built-in example."""
+    mission = mission_of(args)
+    outputs = Outputs.of(args, mission, None)
+    plan(mission, outputs, args)
+    return 0
+
+
+def order(args: argparse.Namespace) -> int:
+    """``pmht-opt order``: the routes of a mission's ordering."""
+    mission = mission_of(args)
+    figure = check_output("--out", args.out, figure_formats(), "figure") if args.out else None
+    js = check_output("--json", args.json, {".json"}, "tour") if args.json else None
+    tour: TourResult = order_mission(mission)
+    sc = mission.scenario
+    u = " m" if mission.origin is not None else ""
+    print(f"ordering        {tour.method}" + (" (closed routes)" if mission.planner.return_to_base else ""))
+    print(f"total distance  {tour.total_distance:.2f}{u}")
+    print(f"wall time       {tour.wall_time:.2f} s")
+    for m, route in enumerate(tour.routes):
+        print(f"platform {m}      {len(route)} locales: {' '.join(str(int(n)) for n in route)}")
+    if figure is not None:
+        print(f"figure: {tour.plot(prepared(figure), sc)}")
+    if js is not None:
+        prepared(js).write_text(json.dumps(tour.to_dict()) + "\n")
+        print(f"tour: {js}")
+    return 0
+
+
+def example(args: argparse.Namespace) -> int:
+    """``pmht-opt example``: list, print or copy the built-in examples."""
+    if args.name is None:
+        for name, what in EXAMPLES.items():
+            print(f"{name:<8} {what}")
+        return 0
+    source = example_path(args.name)
+    if args.out is None:
+        print(source.read_text(), end="")
+        return 0
+    if args.out.exists() and not args.out.is_dir():
+        raise ConfigError(f"--out: {str(args.out)!r} is a file; give a directory.")
+    args.out.mkdir(parents=True, exist_ok=True)
+    for file in sorted(source.parent.glob(f"{args.name}*")):
+        print(f"wrote: {shutil.copy(file, args.out / file.name)}")
+    return 0
+
+
+def scenario(args: argparse.Namespace) -> int:
+    """``pmht-opt scenario``: one of the paper's scenarios to a file."""
+    sc = paper_scenario(args.kind, seed=args.seed)
+    path = sc.save(prepared(check_output("--out", args.out, {".toml", ".json"}, "scenario")))
+    print(f"scenario {sc.name}: {path}")
+    return 0
+
+
+def solvers(args: argparse.Namespace) -> int:
+    """``pmht-opt solvers``: the M-step backends and whether each is installed."""
+    installed = set(available_backends())
+    for name, backend in BACKENDS.items():
+        hint = backend.spec.install_hint if backend.spec is not None else ""
+        state = "available" if name in installed else f"missing ({hint})"
+        print(f"{name:<9} {state}")
+    return 0
+
+
+def study(argv: Sequence[str]) -> int:
+    """``pmht-opt study ...``: forwarded to :mod:`studies.cli`, imported only now (the core never
+    imports the studies)."""
+    try:
+        from studies.cli import main as study_main
+    except ModuleNotFoundError as err:
+        raise MissingDependencyError(
+            f"the studies need {err.name}, which is not installed; "
+            'install the extra: pip install ".[studies]"'
+        ) from None
+    return study_main(list(argv))

@@ -1,0 +1,144 @@
+"""The files a command writes: checked before anything is planned, written after.
+
+A run that is refused should be refused in milliseconds, not after minutes of planning: every output
+path (figure, metrics, exports, animation) is checked for its format, its directory and whether it can
+be written before the planner starts, and the writing afterwards only creates missing folders.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pmht_opt.exceptions import ConfigError
+from pmht_opt.io import Mission, export_csv, export_geojson, export_qgc_plan, qgc_paths
+from pmht_opt.result import PlanResult
+
+#: Export formats by file suffix.
+EXPORTS = {".csv": "CSV", ".geojson": "GeoJSON", ".plan": "QGroundControl plan"}
+
+
+def figure_formats() -> set[str]:
+    """The suffixes matplotlib can write (imported only when a figure is asked for)."""
+    from pmht_opt.plotting import figure_formats as formats
+
+    return formats()
+
+
+def check_output(option: str, path: Path, suffixes: set[str] | dict[str, str], what: str) -> Path:
+    """Refuse, before anything is planned, an output path that cannot be written.
+
+    Raises
+    ------
+    ConfigError
+        An unknown format (the suffix), a directory, a parent that is a file, or a directory that
+        refuses new files; the message names the option.
+    """
+    suffix = path.suffix.lower()
+    if path.is_dir():
+        raise ConfigError(f"{option}: {str(path)!r} is a directory; give a file name.")
+    if suffix not in suffixes:
+        known = ", ".join(sorted(suffixes))
+        raise ConfigError(
+            f"{option}: unknown {what} format {suffix or '(no suffix)'!r} of {str(path)!r}; use {known}."
+        )
+    parent = path.absolute().parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ConfigError(f"{option}: cannot write {str(path)!r}: {str(parent)!r} is not a directory.")
+    try:
+        with tempfile.TemporaryFile(dir=parent):
+            pass
+    except OSError as err:
+        raise ConfigError(f"{option}: cannot write in {str(parent)!r}: {err.strerror or err}.") from None
+    if path.exists() and not os.access(path, os.W_OK):
+        raise ConfigError(f"{option}: {str(path)!r} exists and cannot be overwritten.")
+    return path
+
+
+def prepared(path: Path) -> Path:
+    """``path``, with its missing folders created."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+@dataclass
+class Outputs:
+    """The files a planning command writes, checked up front."""
+
+    figure: Path | None = None
+    json: Path | None = None
+    exports: list[Path] = field(default_factory=list)
+    animation: Path | None = None
+
+    @classmethod
+    def of(cls, args: argparse.Namespace, mission: Mission | None, default_figure: Path | None) -> Outputs:
+        """The outputs the options ask for, each checked (:func:`check_output`)."""
+        out = cls()
+        figure = getattr(args, "out", None) or default_figure
+        if figure is not None:
+            out.figure = check_output("--out", figure, figure_formats(), "figure")
+        if getattr(args, "json", None) is not None:
+            out.json = check_output("--json", args.json, {".json"}, "metrics")
+        for path in getattr(args, "export", None) or []:
+            check_output("--export", path, EXPORTS, "export")
+            if path.suffix.lower() == ".plan":
+                if mission is None or mission.origin is None:
+                    raise ConfigError(
+                        f"--export {path}: a QGroundControl plan needs a geo-referenced mission "
+                        "(a [geo] origin in the mission file)."
+                    )
+                for file in qgc_paths(path, mission.scenario.n_platforms):
+                    check_output("--export", file, EXPORTS, "export")
+            out.exports.append(path)
+        if getattr(args, "animate", None) is not None:
+            out.animation = check_output("--animate", args.animate, {".gif"}, "animation")
+        return out
+
+    def write(self, result: PlanResult, mission: Mission, args: argparse.Namespace) -> None:
+        """Write every output of ``result``, printing each path."""
+        from pmht_opt.plotting import plot_result
+
+        unit = " (m)" if mission.origin is not None else ""
+        if self.figure is not None:
+            path = plot_result(result, prepared(self.figure), show_radius=args.show_radius, unit=unit)
+            print(f"figure: {path}")
+        if self.animation is not None:
+            from pmht_opt.animation import animate_plan
+
+            print(f"animation: {animate_plan(result, prepared(self.animation), unit=unit)}")
+        if self.json is not None:
+            payload = {
+                "scenario": result.scenario.name,
+                "metrics": result.metrics(),
+                "positions": result.positions.tolist(),
+                "assignment": result.assignment.tolist(),
+                "visit_time": result.visit_time.tolist(),
+            }
+            prepared(self.json).write_text(json.dumps(payload) + "\n")
+            print(f"metrics and paths: {self.json}")
+        for path in self.exports:
+            for file in _export(result, mission, path, args):
+                print(f"{EXPORTS[path.suffix.lower()]}: {file}")
+
+
+def _export(result: PlanResult, mission: Mission, path: Path, args: argparse.Namespace) -> list[Path]:
+    """Export ``result`` to ``path`` in the format its suffix names; the files written."""
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        return [export_csv(result, prepared(path), mission.origin)]
+    if suffix == ".geojson":
+        return [export_geojson(result, prepared(path), mission.origin)]
+    assert mission.origin is not None
+    return export_qgc_plan(
+        result,
+        prepared(path),
+        mission.origin,
+        altitude=args.altitude if args.altitude is not None else mission.altitude,
+        speed=args.speed,
+    )
