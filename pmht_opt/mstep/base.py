@@ -110,6 +110,11 @@ class MStep(abc.ABC):
         self.M = scenario.n_platforms
         self.x0 = scenario.initial_states
         self._reference: BandedMStep | None = None
+        self._setup()
+
+    def _setup(self) -> None:
+        """What a backend prepares once from the attributes above (nothing by default)."""
+        return None
 
     def solve(self, data: MStepData) -> MStepOutput:
         """Minimise ``J`` for these weights, subject to the constraints active in ``data``.
@@ -142,3 +147,15 @@ class MStep(abc.ABC):
     def _with_start(self, body: np.ndarray) -> np.ndarray:
         """Prepend the known initial states to ``(M, T, 6)`` paths."""
         return np.concatenate([self.x0[:, None, :], body], axis=1)
+
+
+def check_cvxpy_solver(settings: dict[str, object], field: str) -> None:
+    """Raise :class:`~pmht_opt.exceptions.UnknownSolverError` naming ``field`` if the settings'
+    ``cvxpy_solver`` (default ``"CLARABEL"``) is not a solver cvxpy has installed."""
+    from pmht_opt.exceptions import UnknownSolverError
+    from solvers.cvxpy_ import check_solver_name
+
+    try:
+        check_solver_name(str(settings.get("cvxpy_solver", "CLARABEL")))
+    except solvers.UnknownSolverError as err:
+        raise UnknownSolverError(f"{field}: {err}") from err

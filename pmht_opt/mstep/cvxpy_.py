@@ -17,15 +17,13 @@ import numpy as np
 import scipy.sparse as sp
 
 import solvers
-from pmht_opt.constraints.base import Constraint
 from pmht_opt.constraints.user import CvxpyConstraint, CvxpyVariables
-from pmht_opt.exceptions import ConfigError, InfeasibleError, SolverError, UnknownSolverError
+from pmht_opt.exceptions import ConfigError, InfeasibleError, SolverError
 from pmht_opt.model import PX, PY, STATE_DIM
-from pmht_opt.mstep.base import MStep, MStepData, MStepOutput
+from pmht_opt.mstep.base import MStep, MStepData, MStepOutput, check_cvxpy_solver
 from pmht_opt.mstep.formulation import QPLayout, dynamics_rows
 from pmht_opt.mstep.qp import check_solution
 from pmht_opt.mstep.rows import RowBuilder, assemble, soften_cvxpy
-from pmht_opt.scenario import Scenario
 
 
 class JointCvxpyMStep(MStep):
@@ -39,21 +37,11 @@ class JointCvxpyMStep(MStep):
 
     name: ClassVar[str] = "cvxpy"
 
-    def __init__(
-        self,
-        scenario: Scenario,
-        settings: dict[str, Any] | None = None,
-        accept_inaccurate: bool = False,
-        constraints: tuple[Constraint, ...] = (),
-    ) -> None:
-        super().__init__(scenario, settings, accept_inaccurate, constraints)
-        from solvers.cvxpy_ import CvxpySession, check_solver_name
+    def _setup(self) -> None:
+        from solvers.cvxpy_ import CvxpySession
 
         self.options = dict(self.settings)
-        try:
-            check_solver_name(str(self.options.get("cvxpy_solver", "CLARABEL")))
-        except solvers.UnknownSolverError as err:
-            raise UnknownSolverError(str(err)) from err
+        check_cvxpy_solver(self.options, "solver_settings")
         self.session_class = CvxpySession
         self.rows = RowBuilder(self.constraints, conic=True)
         self.layout = QPLayout(self.M, self.T)

@@ -12,7 +12,7 @@ import solvers
 from pmht_opt.constraints.base import Constraint
 from pmht_opt.exceptions import InfeasibleError, PmhtOptError, SolverError, UnknownSolverError
 from pmht_opt.mstep.banded import axis_states
-from pmht_opt.mstep.base import MStep, MStepData, MStepOutput
+from pmht_opt.mstep.base import MStep, MStepData, MStepOutput, check_cvxpy_solver
 from pmht_opt.mstep.diagnosis import diagnose
 from pmht_opt.mstep.platform import PlatformQP
 from pmht_opt.mstep.rows import PlatformRows, RowBuilder
@@ -82,12 +82,7 @@ class QPMStep(MStep):
             raise UnknownSolverError(str(err)) from err
         self.rows = RowBuilder(self.constraints, conic=self.session_class.supports_soc)
         if solver == "cvxpy":  # tuned per cvxpy solver; cvxpy's compilation holds the GIL: one thread
-            from solvers.cvxpy_ import check_solver_name
-
-            try:
-                check_solver_name(str(self.settings.get("cvxpy_solver", "CLARABEL")))
-            except solvers.UnknownSolverError as err:
-                raise UnknownSolverError(f"solver_settings: {err}") from err
+            check_cvxpy_solver(self.settings, "solver_settings")
             self.options = {**cvxpy_defaults(self.settings), **self.settings}
             self.constrained_options = dict(self.settings)
             retries = cvxpy_retries(self.settings)
