@@ -3,11 +3,10 @@ the plan the library gives; outputs are checked before planning; exits are clean
 
 from __future__ import annotations
 
-import re
-
 import inspect
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
