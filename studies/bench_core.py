@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -125,11 +126,24 @@ def time_backend(scenario: po.Scenario, backend: str, repeats: int) -> dict[str,
 
 def baseline(checkout: Path, repeats: int, seed: int, backends: list[str]) -> dict[str, Any]:
     """The earlier code's own benchmark, run in ``checkout`` (its package imported from there)."""
+    # The checkout's package first on the path: this environment's own (possibly editable) install
+    # of pmht-opt must not stand in for the earlier code.
+    env = {**os.environ, "PYTHONPATH": str(checkout.resolve())}
+    where = subprocess.run(
+        [sys.executable, "-c", "import pmht_opt; print(pmht_opt.__file__)"],
+        cwd=checkout,
+        env=env,
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    if not Path(where).resolve().is_relative_to(checkout.resolve()):
+        raise SystemExit(f"--baseline: the checkout's package is not the one imported ({where})")
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "old.json"
         cmd = [sys.executable, "studies/bench_core.py", "--repeats", str(repeats), "--seed", str(seed)]
         cmd += ["--backends", *backends, "--out", str(out)]
-        subprocess.run(cmd, cwd=checkout, check=True, capture_output=True, text=True)
+        subprocess.run(cmd, cwd=checkout, env=env, check=True, capture_output=True, text=True)
         data: dict[str, Any] = json.loads(out.read_text())
     commit = subprocess.run(
         ["git", "rev-parse", "HEAD"], cwd=checkout, capture_output=True, text=True, check=False
