@@ -8,7 +8,8 @@ annealing. Beside them, measured in the same run:
   smoothed by a plain Rauch-Tung-Struebel smoother written here, vectorised over platforms and axes
   with a Python loop over time (the usual way to write one), plus the default plan's E-step time;
 * with ``--baseline DIR``, the **earlier code** in the git checkout ``DIR`` (its own
-  ``studies/bench_core.py`` in a subprocess, before this one's plans): the ratio new / old per backend.
+  ``studies/bench_core.py`` in a subprocess, one plan per backend and round, alternating with this
+  code's plans round by round so that a change of load hits both): the ratio new / old per backend.
 
 Results (medians, all runs, provenance) go to ``studies/results/bench_core.json``. Targets on this
 2-core machine: the default plan at most 0.35 s; every backend no slower than the baseline.
@@ -124,6 +125,18 @@ def time_backend(scenario: po.Scenario, backend: str, repeats: int) -> dict[str,
     }
 
 
+def merge_rounds(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """One row from single-plan rows of :func:`time_backend`: medians over the rounds."""
+    walls = [w for r in runs for w in r["runs_s"]]
+    keys = ("median_estep_s", "median_mstep_s", "estep_per_iteration_after_annealing_ms")
+    return {
+        "median_wall_s": float(np.median(walls)),
+        "runs_s": walls,
+        **{k: float(np.median([r[k] for r in runs])) for k in keys},
+        "total_distance": runs[-1]["total_distance"],
+    }
+
+
 def baseline(checkout: Path, repeats: int, seed: int, backends: list[str]) -> dict[str, Any]:
     """The earlier code's own benchmark, run in ``checkout`` (its package imported from there)."""
     # The checkout's package first on the path: this environment's own (possibly editable) install
@@ -162,14 +175,26 @@ def main() -> None:
 
     scenario = po.paper_scenario("A", seed=args.seed)
     old = None
-    if args.baseline is not None:
-        old = baseline(
-            args.baseline,
-            args.repeats,
-            args.seed,
-            [b for b in args.backends if b in ("kalman", "clarabel", "osqp", "cvxpy")],
-        )
-    rows = {b: time_backend(scenario, b, args.repeats) for b in args.backends}
+    if args.baseline is None:
+        rows = {b: time_backend(scenario, b, args.repeats) for b in args.backends}
+    else:  # old and new in alternate rounds, so that a change of load on a shared machine hits both
+        common = [b for b in args.backends if b in ("kalman", "clarabel", "osqp", "cvxpy")]
+        rounds = []
+        for _ in range(args.repeats):
+            rounds.append(
+                (
+                    baseline(args.baseline, 1, args.seed, common),
+                    {b: time_backend(scenario, b, 1) for b in args.backends},
+                )
+            )
+        old = {
+            "commit": rounds[0][0]["commit"],
+            "results": {
+                b: {"median_wall_s": float(np.median([o["results"][b]["median_wall_s"] for o, _ in rounds]))}
+                for b in common
+            },
+        }
+        rows = {b: merge_rounds([new[b] for _, new in rounds]) for b in args.backends}
     steps = _recorded_msteps(scenario)
     ref_m = float(np.median([reference_mstep_seconds(scenario, steps) for _ in range(args.repeats)]))
     default = rows.get("auto", next(iter(rows.values())))
