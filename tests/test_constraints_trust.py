@@ -12,7 +12,7 @@ import pytest
 import pmht_opt as po
 from pmht_opt.constraints.base import ConstraintContext
 from pmht_opt.result import excursion
-from pmht_opt.verify import verify_plan
+from pmht_opt.verify import resolution, tolerance, verify_plan
 from studies.constraint_measures import measure
 from studies.constraints_stress import l_shaped
 
@@ -66,6 +66,33 @@ def test_verification_is_relative_to_the_limit() -> None:
         verify_plan("clarabel", sc, [lim], [report])
     # Soft constraints are reported, not refused.
     verify_plan("clarabel", sc, [po.SpeedLimit(1e-9, soft=True)], [report])
+
+
+def test_verification_does_not_report_rounding_as_a_violation() -> None:
+    # The tolerance of a tiny limit is the positions' resolution (64 units in the last place of the
+    # largest coordinate), no less; ordinary limits keep their relative tolerance.
+    sc = po.Scenario(locales=[[9.0, 9.0]], starts=[[9.0, 1.0]], horizon=4, bounds=(0, 10, 0, 10))
+    floor = resolution(sc)
+    assert 64 * np.spacing(10.0) == floor
+    assert tolerance("clarabel", po.AccelLimit(1e-9), sc) == floor
+    assert tolerance("clarabel", po.SpeedLimit(0.1), sc) == pytest.approx(1e-6 * 0.1)
+    # A platform at rest but for one step, whose second difference exceeds a limit of 1e-9 by a few
+    # units in the last place of 9, meets it as far as positions can tell; 100 resolutions more do not.
+    states = np.zeros((1, 5, 6))
+    states[0, :, 0], states[0, :, 3] = 9.0, 1.0
+    states[0, 2, 0] += 0.5e-9 + 8 * np.spacing(9.0)
+    assert 1e-6 * 1e-9 < np.max(np.abs(np.diff(states[0, :, 0], 2))) - 1e-9 < floor
+    lim = po.AccelLimit(1e-9)
+    ctx = ConstraintContext(scenario=sc, states=states)
+    verify_plan("clarabel", sc, [lim], [lim.violation(states, ctx)])
+    states[0, 2, 0] += 100 * floor
+    with pytest.raises(po.SolverError, match=r"breaks AccelLimit"):
+        verify_plan("clarabel", sc, [lim], [lim.violation(states, ctx)])
+
+
+def test_an_acceleration_limit_of_1e_9_gives_a_verified_plan() -> None:
+    res = po.plan_pmht(l_shaped(), po.PMHTConfig(max_iter=30, constraints=[po.AccelLimit(1e-9)]))
+    assert res.max_acceleration <= 1e-9 + resolution(res.scenario)
 
 
 def test_starts_moving_faster_than_the_limit_are_refused_before_planning() -> None:

@@ -93,10 +93,11 @@ def diagnose(
         if value > CULPRIT_SLACK:
             culprits.setdefault(owner.constraint, []).append((owner.time, owner.label, float(value)))
     if not culprits:
+        others = "'cvxpy' or 'osqp'" if sol.backend == "clarabel" else "'clarabel'"
         return SolverError(
             f"{sol.backend}: the M-step solve failed (platform {platform}) with status {sol.raw_status!r}; "
             "its constraints can all be met (a feasibility solve needs no slack), so the failure is the "
-            "solver's: try solver='clarabel'.",
+            f"solver's: try solver={others}, or soft=True on the tightest constraint.",
             sol.backend,
             sol.raw_status,
         )
