@@ -191,6 +191,7 @@ def _is_crash(err: BaseException) -> bool:
 def _progress_bar(total: int, initial: int, label: str, show: bool) -> Any:
     from tqdm import tqdm
 
+    tqdm.monitor_interval = 0  # no monitor thread (see pmht_opt.cli.commands._progress_bar)
     return tqdm(total=total, initial=initial, desc=label, disable=not show, file=sys.stderr, smoothing=0.1)
 
 

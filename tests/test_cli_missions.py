@@ -223,6 +223,7 @@ def test_demo_animates_the_iterations(tmp_path: Path, capsys: pytest.CaptureFixt
 
 def _env() -> dict[str, str]:
     env = dict(os.environ)
+    env["PYTHONFAULTHANDLER"] = "1"  # a child that has to be aborted prints its threads' stacks
     env["PYTHONPATH"] = str(Path(__file__).resolve().parents[1]) + os.pathsep + env.get("PYTHONPATH", "")
     return env
 
@@ -288,7 +289,12 @@ def test_ctrl_c_stops_with_one_line_and_status_130(tmp_path: Path) -> None:
         if b"objective" not in seen and b"it/s" not in seen and time.monotonic() > deadline - 50:
             break  # no progress bar (tqdm missing): the plan has surely started by now
     proc.send_signal(signal.SIGINT)
-    _, rest = proc.communicate(timeout=60)
+    try:
+        _, rest = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:  # a hang: make the child dump every thread's stack, then fail
+        proc.send_signal(signal.SIGABRT)
+        _, rest = proc.communicate(timeout=30)
+        raise AssertionError("no exit 60 s after SIGINT:\n" + rest.decode()[-6000:]) from None
     err = (seen + rest).decode()
     assert proc.returncode == cli.EXIT_INTERRUPTED
     assert "Traceback" not in err and err.rstrip().splitlines()[-1] == "pmht-opt: interrupted."

@@ -32,6 +32,9 @@ def _progress_bar(total: int, label: str, quiet: bool) -> Any:
         from tqdm import tqdm
     except ModuleNotFoundError:
         return None
+    # No monitor thread: it only tunes how often a slow bar redraws, and a thread that takes the bar's
+    # lock while Ctrl-C closes the bar is one more way for an interrupt to wait.
+    tqdm.monitor_interval = 0
     return tqdm(total=total, desc=label, file=sys.stderr)
 
 
