@@ -262,6 +262,13 @@ def test_a_closed_pipe_exits_quietly() -> None:
     assert shell.stdout.startswith("#") and "Traceback" not in shell.stderr and "Error" not in shell.stderr
 
 
+def _as_a_terminal_job() -> None:
+    """In the child before exec: Ctrl-C at its default, as a shell starts a foreground job. A child
+    that inherits an ignored SIGINT (from whatever ran before in this test process) is started with
+    Ctrl-C ignored, and Python keeps it so."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_stops_with_one_line_and_status_130(tmp_path: Path) -> None:
     proc = subprocess.Popen(
         [
@@ -278,6 +285,7 @@ def test_ctrl_c_stops_with_one_line_and_status_130(tmp_path: Path) -> None:
         stderr=subprocess.PIPE,
         env=_env(),
         cwd=tmp_path,
+        preexec_fn=_as_a_terminal_job,
     )
     assert proc.stderr is not None
     os.set_blocking(proc.stderr.fileno(), False)

@@ -372,6 +372,7 @@ def test_sigint_during_an_osqp_solve_exits_130_without_a_retry(tmp_path: Path) -
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         env=env,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as a shell's foreground job
     )
     assert proc.stderr is not None
     os.set_blocking(proc.stderr.fileno(), False)
