@@ -106,17 +106,17 @@ def missed_locales(scenario: Scenario, positions: np.ndarray, radius: float) -> 
 
 
 def _check(result: PlanResult, radius: float) -> None:
-    """Raise :class:`SolverError` unless every locale is covered and every hard constraint holds."""
+    """Raise :class:`SolverError` unless every locale is covered on the segments between positions.
+
+    The hard constraints (the user's and the visit discs) were verified on the positions when the run
+    returned its plan (:func:`pmht_opt.verify.verify_plan`, the tolerance every planner uses); coverage
+    is measured here, independently of the visit steps the discs were imposed at.
+    """
     missed = missed_locales(result.scenario, result.positions, radius)
     if missed.size:
         raise SolverError(
             f"plan_coverage: locales {missed.tolist()} are further than {radius:g} from every path.",
             backend=result.solver,
-        )
-    broken = [r.name for r in result.constraint_reports() if not r.soft and not r.satisfied]
-    if broken:
-        raise SolverError(
-            f"plan_coverage: constraints {broken} do not hold on the plan.", backend=result.solver
         )
 
 
