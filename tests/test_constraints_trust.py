@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import pmht_opt as po
+import solvers
 from pmht_opt.constraints.base import ConstraintContext
 from pmht_opt.result import excursion
 from pmht_opt.verify import resolution, tolerance, verify_plan
@@ -152,3 +153,30 @@ def test_guaranteed_visits_on_b_seed_4_neither_fail_nor_run_away() -> None:
 def test_nonsense_parameters_are_config_errors_naming_the_field(build: object, field: str) -> None:
     with pytest.raises(po.ConfigError, match=field):
         build()  # type: ignore[operator]
+
+
+def test_a_binding_acceleration_limit_on_c_plans_with_clarabel() -> None:
+    # Scenario C, seed 0: the limit binds in annealing's first iterations, where Clarabel stalled at a
+    # primal residual of 7e-6 until constrained QPs were posed in scaled units.
+    sc = po.paper_scenario("C", seed=0)
+    res = po.plan_pmht(sc, po.PMHTConfig(solver="clarabel", max_iter=5, constraints=[po.AccelLimit(1e-3)]))
+    assert res.max_acceleration <= 1e-3 * (1 + 1e-6)
+
+
+def test_the_phase_one_probe_needs_no_slack_for_a_tight_limit_met_by_coasting() -> None:
+    # Platform 2 of A seed 0 starts at rest at (8.1, 9.1): coasting meets AccelLimit(1e-5). In absolute
+    # coordinates the probe ended "almost solved" 0.027 of the limit short at t = 0 and named the limit
+    # infeasible; measured from the start it needs no slack.
+    from pmht_opt.mstep.diagnosis import CULPRIT_SLACK, phase_one
+    from pmht_opt.mstep.rows import RowBuilder
+
+    sc = po.paper_scenario("A", seed=0)
+    states = sc.model.propagate(sc.initial_states, sc.horizon)
+    rows = RowBuilder([po.AccelLimit(1e-5)], conic=True).rows(
+        ConstraintContext(scenario=sc, states=states), [0]
+    )
+    session = solvers.get_session_class("clarabel")
+    sol, slacks, owners = phase_one(sc.model, sc.initial_states[2], sc.horizon, rows[2], session)
+    assert sol.ok
+    assert len(owners) == slacks.size > 0
+    assert slacks.max() <= CULPRIT_SLACK

@@ -53,9 +53,12 @@ class JointCvxpyMStep(MStep):
         import cvxpy as cp
 
         t_idx = np.arange(1, self.T + 1)[:, None]
+        units = np.tile(self.layout.units, self.T)  # the QP's variables are states in its own units
         states = [
             cp.reshape(
-                x[self.layout.x(m, t_idx, np.arange(STATE_DIM)).ravel()], (self.T, STATE_DIM), order="C"
+                cp.multiply(units, x[self.layout.x(m, t_idx, np.arange(STATE_DIM)).ravel()]),
+                (self.T, STATE_DIM),
+                order="C",
             )
             for m in range(self.M)
         ]
@@ -89,7 +92,7 @@ class JointCvxpyMStep(MStep):
         n_slack = 0
         for m, platform_rows in sorted(self.rows.rows(data.ctx, data.active, data.strengths).items()):
             col_map = lay.x(m, t_idx[:, None], np.arange(STATE_DIM)).ravel()
-            extra = assemble(platform_rows.items, n + n_slack, col_map)
+            extra = assemble(platform_rows.items, n + n_slack, col_map, units=lay.units)
             blocks.append(extra.A)
             b.append(extra.b)
             cones += extra.cones

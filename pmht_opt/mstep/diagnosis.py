@@ -10,7 +10,10 @@ that stay positive show where the least relaxation has to give; the error names 
 constraint of the platform as the set that cannot all be met (the slack can land on any member of a
 conflicting pair: an acceleration limit and a visit it forbids share the blame), then those slacks.
 If no slack stays positive the problem is feasible and the failure was the solver's own, a
-:class:`~pmht_opt.exceptions.SolverError` with its status.
+:class:`~pmht_opt.exceptions.SolverError` with its status. A phase-one solve that itself ends
+inaccurate names culprits only where the slack is far above its reduced tolerances
+(:data:`INACCURATE_CULPRIT_SLACK`). The phase-one problem measures positions from the platform's start
+(:func:`~pmht_opt.mstep.formulation.start_frame`).
 
 The phase-one problem is solved by Clarabel where it is installed (an interior-point solve of a
 second-order cone program), else by the failing backend.
@@ -24,11 +27,14 @@ import scipy.sparse as sp
 import solvers
 from pmht_opt.exceptions import InfeasibleError, PmhtOptError, SolverError
 from pmht_opt.model import MotionModel
-from pmht_opt.mstep.formulation import QPLayout, dynamics_rows
+from pmht_opt.mstep.formulation import QPLayout, dynamics_rows, start_frame
 from pmht_opt.mstep.rows import PlatformRows, SlackOwner, assemble
 
 #: Slacks above this fraction of a constraint's own size (or absolute, for linear rows) mark a culprit.
 CULPRIT_SLACK = 1e-6
+#: The same when the phase-one solve itself ended inaccurate ("almost solved"): its slacks are then
+#: only trusted well above its reduced tolerances.
+INACCURATE_CULPRIT_SLACK = 1e-3
 
 
 def phase_one(
@@ -42,8 +48,9 @@ def phase_one(
     layout = QPLayout(1, horizon)
     t_idx = np.arange(1, horizon + 1)
     col_map = layout.x(0, t_idx[:, None], np.arange(6)).ravel()
-    extra = assemble([i.relaxed(1.0) for i in rows.items], layout.n, col_map)
-    A_dyn, b_dyn = dynamics_rows(model, layout, x0[None, :])
+    x0_rel, origin = start_frame(x0, horizon)  # the platform QP's own coordinates
+    extra = assemble([i.relaxed(1.0) for i in rows.items], layout.n, col_map, origin, layout.units)
+    A_dyn, b_dyn = dynamics_rows(model, layout, x0_rel[None, :])
     width = layout.n + extra.n_slack
     A_dyn = sp.csc_matrix(
         (A_dyn.data, A_dyn.indices, np.concatenate([A_dyn.indptr, np.full(extra.n_slack, A_dyn.indptr[-1])])),
@@ -89,8 +96,9 @@ def diagnose(
             sol.raw_status,
         )
     culprits: dict[str, list[tuple[int, str | None, float]]] = {}
+    threshold = CULPRIT_SLACK if probe.ok else INACCURATE_CULPRIT_SLACK
     for value, owner in zip(slacks, owners, strict=True):
-        if value > CULPRIT_SLACK:
+        if value > threshold:
             culprits.setdefault(owner.constraint, []).append((owner.time, owner.label, float(value)))
     if not culprits:
         others = "'cvxpy' or 'osqp'" if sol.backend == "clarabel" else "'clarabel'"

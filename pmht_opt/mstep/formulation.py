@@ -16,6 +16,10 @@ the answer.
 Without coupling constraints the QP separates by platform, so each platform is its own QP. Its
 variables, per step ``t = 1..T``, are a block of 12, ``[x_t (6), u_t (6)]``, at offset ``12 (t - 1)``;
 its constraints ``x_t - F x_{t-1} - L u_t = 0`` (``x_1 - L u_1 = F x_0``).
+
+A QP with constraint rows measures velocities and accelerations in a unit of time of ``T / 5``
+steps (:func:`state_units`). The infeasibility diagnosis's phase-one problem
+(:mod:`pmht_opt.mstep.diagnosis`) also measures positions from the start (:func:`start_frame`).
 """
 
 from __future__ import annotations
@@ -30,13 +34,33 @@ from pmht_opt.model import PX, PY, STATE_DIM, MotionModel
 BLOCK = 2 * STATE_DIM  # [x_t, u_t]
 
 
-class QPLayout:
-    """Index arithmetic of the M-step QP's variable vector."""
+def time_unit(horizon: int) -> float:
+    """The QP's unit of time in steps, ``max(T / 5, 1)``: velocities and accelerations are measured per
+    this unit (:func:`state_units`) and the dynamics rows scaled by it (:func:`dynamics_rows`)."""
+    return max(horizon / 5.0, 1.0)
 
-    def __init__(self, n_platforms: int, horizon: int) -> None:
+
+def state_units(horizon: int) -> np.ndarray:
+    """``(6,)`` factors ``c``: the QP's state variable is ``x / c``, so a state ``x = c * xq``.
+
+    Positions keep their unit; velocities are measured per :func:`time_unit` steps and accelerations
+    per its square, so that the three are numbers of one size along a path that crosses the area in a
+    fraction of the horizon. Without it a binding acceleration limit (scenario C, ``|a| <= 1e-3``, an
+    acceleration of ``1e-3`` beside positions of 3) stalled Clarabel at a primal residual of 7e-6.
+    """
+    h = time_unit(horizon)
+    return np.array([1.0, 1.0 / h, 1.0 / h**2, 1.0, 1.0 / h, 1.0 / h**2])
+
+
+class QPLayout:
+    """Index arithmetic of the M-step QP's variable vector, and its units (:func:`state_units`)."""
+
+    def __init__(self, n_platforms: int, horizon: int, scaled: bool = True) -> None:
         self.M = n_platforms
         self.T = horizon
         self.n = BLOCK * n_platforms * horizon
+        #: Per state component, the state's size of one unit of its QP variable (ones if not ``scaled``).
+        self.units = state_units(horizon) if scaled else np.ones(STATE_DIM)
 
     def x(self, m: Any, t: Any, comp: Any) -> Any:
         """Index of state component ``comp`` of platform ``m`` at time ``t`` (``1..T``)."""
@@ -47,8 +71,14 @@ class QPLayout:
         return self.x(m, t, comp) + STATE_DIM
 
     def states(self, xvec: np.ndarray) -> np.ndarray:
-        """``(M, T, 6)`` states from a solution vector."""
-        return xvec.reshape(self.M, self.T, BLOCK)[:, :, :STATE_DIM]
+        """``(M, T, 6)`` states from a solution vector (in the states' own units)."""
+        return xvec.reshape(self.M, self.T, BLOCK)[:, :, :STATE_DIM] * self.units
+
+    def column_units(self) -> np.ndarray:
+        """``(n,)`` factor of each QP column: :attr:`units` on states, 1 on the noise."""
+        one = np.ones(BLOCK)
+        one[:STATE_DIM] = self.units
+        return np.tile(one, self.M * self.T)
 
     def noise(self, xvec: np.ndarray) -> np.ndarray:
         """``(M, T, 6)`` whitened process noise ``u`` from a solution vector."""
@@ -58,11 +88,12 @@ class QPLayout:
 def dynamics_rows(model: MotionModel, layout: QPLayout, x0: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:
     """Equality rows ``x_t - F x_{t-1} - L u_t = 0`` (``= F x_0`` at ``t = 1``) for every platform.
 
-    The velocity rows are multiplied by ``T / 5`` and the acceleration rows by ``(T / 5)^2``. This is the
-    same constraint, but it changes what a solver's residual tolerance means: a residual ``e`` left in a
-    velocity row at step ``s`` moves every later position by ``(t - s) e``, and one in an acceleration
-    row by ``(t - s)^2 e / 2``, so unscaled rows let an ``eps``-accurate solve drift in position by
-    orders of magnitude more than ``eps``.
+    The columns are in the layout's units (:func:`state_units`). The velocity rows are multiplied by
+    ``T / 5`` and the acceleration rows by ``(T / 5)^2``. This is the same constraint, but it changes
+    what a solver's residual tolerance means: a residual ``e`` left in a velocity row at step ``s``
+    moves every later position by ``(t - s) e``, and one in an acceleration row by ``(t - s)^2 e / 2``,
+    so unscaled rows let an ``eps``-accurate solve drift in position by orders of magnitude more than
+    ``eps``.
     """
     M, T = layout.M, layout.T
     F, L = model.F, model.L
@@ -85,15 +116,36 @@ def dynamics_rows(model: MotionModel, layout: QPLayout, x0: np.ndarray) -> tuple
                 cols.append(layout.x(m_idx[later], t_idx[later] - 1, j))
                 vals.append(np.full(int(later.sum()), -F[i, j]))
     n_rows = STATE_DIM * M * T
+    cols_all = np.concatenate(cols)
     A = sp.csc_matrix(
-        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n_rows, layout.n)
+        (np.concatenate(vals) * layout.column_units()[cols_all], (np.concatenate(rows), cols_all)),
+        shape=(n_rows, layout.n),
     )
     b = np.zeros(n_rows)
     first = (STATE_DIM * (np.arange(M) * T))[:, None] + np.arange(STATE_DIM)[None, :]
     b[first] = x0 @ F.T
-    horizon = max(T / 5.0, 1.0)
+    horizon = time_unit(T)
     row_scale = np.tile(np.array([1.0, horizon, horizon**2, 1.0, horizon, horizon**2]), M * T)
     return (sp.diags(row_scale) @ A).tocsc(), row_scale * b
+
+
+def start_frame(x0: np.ndarray, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+    """Coordinates measured from one platform's start: ``(x0', origin)``, the start state with its
+    position at zero and the stacked states ``(6 horizon,)`` of the start's position held at every step
+    ``1..horizon`` (zero velocity and acceleration); states are ``origin + x'``.
+
+    The dynamics do not change (``F`` carries a constant position over unchanged) and a constraint
+    ``h - G z`` becomes ``(h - G z_0) - G z'``. Solvers' tolerances are relative to the size of the
+    numbers they are given: at the paper's scale (positions up to 10) a limit of 1e-5 on the second
+    difference of positions is, in absolute coordinates, a cone whose offset is 1e6 times its radius;
+    a feasibility solve of it ended "almost solved" 2.7e-7 short of the limit at the first step, which
+    read as an infeasibility. From the start, the same solve needs no slack.
+    """
+    x0_rel = np.array(x0, dtype=float)
+    x0_rel[[PX, PY]] = 0.0
+    one = np.zeros(STATE_DIM)
+    one[[PX, PY]] = np.asarray(x0, dtype=float)[[PX, PY]]
+    return x0_rel, np.tile(one, horizon)
 
 
 def mstep_objective(model: MotionModel, states: np.ndarray, W: np.ndarray, WZ: np.ndarray, r: float) -> float:

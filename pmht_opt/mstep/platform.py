@@ -129,7 +129,7 @@ class PlatformQP:
         sol = qp.solve(W[:n], WZ[:n], r, rows, probe)
         if sol.x is None:
             return sol, None, None
-        head = qp.layout.states(sol.x[: qp.layout.n])[0]
+        head = qp.states(sol.x)
         noise = np.zeros((T, head.shape[1]))
         noise[:n] = qp.layout.noise(sol.x[: qp.layout.n])[0]
         if n == T:
@@ -160,6 +160,8 @@ class HorizonQP:
         state: Settings,
     ) -> None:
         self.layout = lay = QPLayout(1, horizon)
+        #: The layout of a QP without constraint rows, in the states' own units (:meth:`layout_for`).
+        self.plain_layout = QPLayout(1, horizon, scaled=False)
         self.session_class = session_class
         self.state = state
         t_idx = np.arange(1, horizon + 1)
@@ -176,13 +178,33 @@ class HorizonQP:
         diag[u_idx] = 1.0
         self.diag = diag
         self.stored = np.flatnonzero(stored)
-        self.A_dyn, self.b_dyn = dynamics_rows(model, lay, x0[None, :])
+        #: Dynamics rows and right-hand side without (``False``) and with constraint rows.
+        self._dynamics = {
+            constrained: dynamics_rows(model, self.layout_for(constrained), x0[None, :])
+            for constrained in (False, True)
+        }
         self.problem: solvers.QPProblem | None = None
         self.session: solvers.QPSession | None = None
         self.extra: ExtraRows | None = None
         self._pattern: tuple[object, ...] | None = None
         self._setup_r: float | None = None
         self._rows_key: tuple[tuple[int, ...], ...] | None = None
+
+    def layout_for(self, constrained: bool) -> QPLayout:
+        """The layout of a QP with or without constraint rows.
+
+        A QP with constraint rows is posed in scaled units
+        (:func:`~pmht_opt.mstep.formulation.state_units`), which let an interior point meet binding
+        limits. One without keeps the states' own units, which its settings
+        (:mod:`pmht_opt.mstep.tuning`) were tuned for: OSQP with loose tolerances stopped 2e-4 from the
+        exact smoother in scaled units.
+        """
+        return self.layout if constrained else self.plain_layout
+
+    def states(self, x: np.ndarray) -> np.ndarray:
+        """The platform's states ``(T, 6)`` in their own units from a solution vector of the last QP."""
+        lay = self.layout_for(self.extra is not None)
+        return lay.states(x[: lay.n])[0]
 
     def _P(self, n_slack: int) -> sp.csc_matrix:
         # CSC arrays by hand so the position entries stay stored while their weight is zero; slack
@@ -204,11 +226,11 @@ class HorizonQP:
         return q if extra is None or extra.n_slack == 0 else np.concatenate([q, extra.slack_cost])
 
     def _constraints(self) -> tuple[sp.csc_matrix, np.ndarray, tuple[solvers.Cone, ...]]:
-        zero = solvers.Zero(self.A_dyn.shape[0])
         extra = self.extra
+        A_dyn, b_dyn = self._dynamics[extra is not None]
+        zero = solvers.Zero(A_dyn.shape[0])
         if extra is None:
-            return self.A_dyn, self.b_dyn, (zero,)
-        A_dyn = self.A_dyn
+            return A_dyn, b_dyn, (zero,)
         if extra.n_slack:
             indptr = np.concatenate([A_dyn.indptr, np.full(extra.n_slack, A_dyn.indptr[-1])])
             A_dyn = sp.csc_matrix(
@@ -216,7 +238,7 @@ class HorizonQP:
             )
         A = sp.vstack([A_dyn, extra.A], format="csc")
         A.sort_indices()
-        return A, np.concatenate([self.b_dyn, extra.b]), (zero, *extra.cones)
+        return A, np.concatenate([b_dyn, extra.b]), (zero, *extra.cones)
 
     @property
     def options(self) -> dict[str, Any]:
@@ -249,7 +271,9 @@ class HorizonQP:
             self.session.update(P_data=self.diag[self.stored], q=q)
             return self._retry(self.session.solve(), q, fresh=False, probe=probe)
         self._rows_key = key
-        self.extra = assemble(rows.items, self.layout.n, self.col_map) if rows and rows.items else None
+        self.extra = None
+        if rows and rows.items:
+            self.extra = assemble(rows.items, self.layout.n, self.col_map, units=self.layout.units)
         pattern = None if self.extra is None else self.extra.pattern_key()
         q = self._cost(W, WZ, r)
         A, b, cones = self._constraints()

@@ -26,6 +26,7 @@ import scipy.sparse as sp
 import solvers
 from pmht_opt.constraints.base import Constraint, ConstraintContext
 from pmht_opt.constraints.blocks import Block, inner_polygon, with_span_pattern
+from pmht_opt.model import STATE_DIM
 
 #: Relative tightening of hard rows in the M-step QP (see :func:`_backed_off`).
 BACKOFF = 1e-5
@@ -178,9 +179,21 @@ class _Rows:
         self.cones.append(solvers.Nonneg(slacks.size))
 
 
-def assemble(imposed: Sequence[Imposed], n_vars: int, col_map: np.ndarray) -> ExtraRows:
+def assemble(
+    imposed: Sequence[Imposed],
+    n_vars: int,
+    col_map: np.ndarray,
+    origin: np.ndarray | None = None,
+    units: np.ndarray | None = None,
+) -> ExtraRows:
     """Rows for ``imposed`` blocks on a QP with ``n_vars`` variables; ``col_map[j]`` is the QP column of
-    stacked-state entry ``j``. Soft blocks get slack columns after the QP's own (module docstring)."""
+    stacked-state entry ``j``. Soft blocks get slack columns after the QP's own (module docstring).
+
+    ``origin`` (stacked states, or ``None`` for zero) is the point the QP's variables are measured
+    from: a block ``h - G z`` on the states ``z = origin + z'`` is written ``(h - G origin) - G z'``.
+    ``units`` (``(6,)``, or ``None`` for ones) is the size of one unit of the QP's variable per state
+    component (:func:`~pmht_opt.mstep.formulation.state_units`): ``G``'s columns are multiplied by it.
+    """
     n_slack = sum(i.block.units // i.block.group for i in imposed if i.soft)
     out = _Rows(col_map)
     slack_cost = np.zeros(n_slack)
@@ -188,7 +201,7 @@ def assemble(imposed: Sequence[Imposed], n_vars: int, col_map: np.ndarray) -> Ex
     slack0 = n_vars
     for item in imposed:
         blk = item.block
-        G, h, unit_scale = _normalised(blk)
+        G, h, unit_scale = _normalised(blk, origin, units)
         k = G.shape[0]
         if not item.soft:
             out.block(G, 1.0, _backed_off(blk, h))
@@ -235,22 +248,28 @@ def assemble(imposed: Sequence[Imposed], n_vars: int, col_map: np.ndarray) -> Ex
     )
 
 
-def _normalised(blk: Block) -> tuple[sp.coo_matrix, np.ndarray, np.ndarray]:
-    """``(G, h)`` of ``blk`` with each second-order cone divided by its radius ``h_0`` (when positive),
-    and the factor per unit.
+def _normalised(
+    blk: Block, origin: np.ndarray | None = None, units: np.ndarray | None = None
+) -> tuple[sp.coo_matrix, np.ndarray, np.ndarray]:
+    """``(G, h)`` of ``blk`` on the QP's variables (measured from ``origin``, in ``units``:
+    :func:`assemble`), with each second-order cone divided by its radius ``h_0`` (when positive), and
+    the factor per unit.
 
     A cone is unchanged by a positive factor, but a solver's feasibility tolerance is absolute on the
     rows it is given: divided by its radius, a limit of 1e-3 is met to the same relative precision as
     a limit of 1. Linear rows are left as they are (unit normals and bounds).
     """
     G = with_span_pattern(blk).tocoo()
+    h = blk.h if origin is None else blk.h - G @ origin
+    if units is not None:
+        G.data = G.data * units[G.col % STATE_DIM]
     if blk.kind != "soc":
-        return G, blk.h, np.ones(blk.units)
-    radius = blk.h[:: blk.dim]
+        return G, h, np.ones(blk.units)
+    radius = h[:: blk.dim]
     scale = np.where(radius > 0, 1.0 / np.where(radius > 0, radius, 1.0), 1.0)
     per_row = np.repeat(scale, blk.dim)
     G.data = G.data * per_row[G.row]
-    return G, blk.h * per_row, scale
+    return G, h * per_row, scale
 
 
 def _backed_off(blk: Block, h: np.ndarray) -> np.ndarray:
