@@ -180,3 +180,30 @@ def test_the_phase_one_probe_needs_no_slack_for_a_tight_limit_met_by_coasting() 
     assert sol.ok
     assert len(owners) == slacks.size > 0
     assert slacks.max() <= CULPRIT_SLACK
+
+
+def test_visits_do_not_share_a_step_at_discs_that_only_touch() -> None:
+    # Two locales 1.0 apart at a visit radius of 0.5 (scenario A's grid at VisitAll(0.5)): their discs
+    # meet in one point, which the M-step's inward back-off of hard rows makes infeasible. Both MAP at
+    # t = 3: the second is moved. At 0.6 apart they may share the step.
+    from pmht_opt.constraints.visits import choose_visits
+    from pmht_opt.estep import EStepResult
+
+    T = 6
+    for gap, shared in ((1.0, False), (0.6, True)):
+        sc = po.Scenario(locales=[[5.0, 5.0], [5.0 + gap, 5.0]], starts=[[5.5, 4.0]], horizon=T)
+        w = np.full((2, T), 0.01)
+        w[:, 2] = 1.0
+        w /= w.sum(axis=1, keepdims=True)
+        es = EStepResult(
+            weights=w,
+            W=w.sum(axis=0)[:, None],
+            WZ=np.zeros((T, 1, 2)),
+            log_normaliser=np.zeros(2),
+            n_platforms=1,
+        )
+        states = np.zeros((1, T + 1, 6))
+        states[0, :, 0], states[0, :, 3] = np.linspace(5.0, 6.0, T + 1), 4.0
+        _, time = choose_visits(ConstraintContext(scenario=sc, states=states, estep=es), 0.5)
+        assert time[0] == 3
+        assert bool(time[1] == 3) is shared

@@ -17,6 +17,11 @@ if TYPE_CHECKING:
     from pmht_opt.scenario import Scenario
 
 
+#: Share of the visit radius two visits at one step may use between them (:func:`choose_visits`): 1e-3
+#: inside it, a hundred times the inward back-off of the M-step's hard rows.
+SHARED_RADIUS = 0.999
+
+
 def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """``(platform (N,), time (N,))`` each locale must be visited at, from ``ctx.estep``.
 
@@ -24,7 +29,11 @@ def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np
     clashes with a locale already placed on the same platform (or with its start, at ``t = 0``): two
     visits clash when the platform
     would have to cover the distance between the two discs faster than twice the current path's mean
-    speed (two locales more than ``2 radius`` apart at the same step always clash). A clashing locale
+    speed (two locales more than ``2 radius`` apart at the same step always clash). Two locales share
+    a step only if they lie within ``2 SHARED_RADIUS radius`` (:data:`SHARED_RADIUS`): discs that barely
+    touch leave a single point at which both visits hold (two locales of a unit grid at a visit radius
+    of 0.5), which the 1e-5 inward back-off of hard rows (:data:`pmht_opt.mstep.rows.BACKOFF`) makes
+    infeasible. A clashing locale
     takes its most probable time that clashes with nothing (the nearest such time among equally probable
     ones), so times with zero weight (outside a sub-batch in :func:`~pmht_opt.smoothed.plan_smoothed`)
     are chosen only if nothing else is left.
@@ -44,19 +53,23 @@ def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np
         m = int(platform[n])
         # The start (t = 0) counts as a placed visit: a locale 1 unit from the start cannot be met at t = 1.
         others_t = np.asarray([0, *placed_t.get(m, [])], dtype=float)
-        gap = np.maximum(np.hypot(*(locales[placed_n.get(m, [])] - locales[n]).T) - 2.0 * radius, 0.0)
+        apart = np.hypot(*(locales[placed_n.get(m, [])] - locales[n]).T)
+        gap = np.maximum(apart - 2.0 * radius, 0.0)
         gap = np.concatenate([[max(float(np.hypot(*(starts[m] - locales[n]))) - radius, 0.0)], gap])
+        # At one step, discs that barely touch clash too (docstring).
+        apart_at_once = np.concatenate([[0.0], apart >= 2.0 * SHARED_RADIUS * radius])
         vref = 2.0 * max(float(speed[m]), 1e-9)
 
         def clash(
             t: np.ndarray,
             others_t: np.ndarray = others_t,
             gap: np.ndarray = gap,
+            apart_at_once: np.ndarray = apart_at_once,
             vref: float = vref,
             fast: bool = True,
         ) -> np.ndarray:
             dt = np.abs(t[:, None] - others_t[None, :])
-            same = (dt == 0) & (gap > 0)
+            same = (dt == 0) & ((gap > 0) | (apart_at_once > 0))
             if fast:
                 same = same | (dt * vref < gap)
             same[:, 0] = same[:, 0] & fast  # the start is only a speed check
