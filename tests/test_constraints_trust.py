@@ -207,3 +207,13 @@ def test_visits_do_not_share_a_step_at_discs_that_only_touch() -> None:
         _, time = choose_visits(ConstraintContext(scenario=sc, states=states, estep=es), 0.5)
         assert time[0] == 3
         assert bool(time[1] == 3) is shared
+
+
+@pytest.mark.parametrize("amax", [1e-5, 1e-9])
+def test_tight_acceleration_limits_on_a_plan_with_clarabel(amax: float) -> None:
+    # Feasible by coasting. Normalised by their radius, the second-difference cones had coefficients
+    # of 2e5 (1e-5) beside dynamics rows of order 1 and Clarabel stalled; on the position increments
+    # they solve. At 1e-9 the plan must also keep its positions' rounding inside the limit.
+    sc = po.paper_scenario("A", seed=0)
+    res = po.plan_pmht(sc, po.PMHTConfig(solver="clarabel", max_iter=3, constraints=[po.AccelLimit(amax)]))
+    assert res.max_acceleration <= amax + max(1e-6 * amax, resolution(sc))

@@ -204,3 +204,46 @@ def test_static_rows_are_written_once_and_dynamic_ones_every_iteration(scenario_
     assert first[0].items[0] is again[0].items[0]  # the speed limit's rows are reused
     polygons = RowBuilder(cons, conic=False).rows(ConstraintContext(scenario_a, states), (0,))
     assert {i.block.kind for i in polygons[0].items} == {"nonneg"}
+
+
+def test_difference_rows_on_the_increments_mean_the_same_on_paths_that_obey_the_dynamics() -> None:
+    # A speed limit, an acceleration limit and a visit disc on one platform of scenario C: rewritten on
+    # the position increments, every row takes the same value on any path that obeys the dynamics; the
+    # difference rows no longer touch a position; the rows' pattern does not depend on their values.
+    import scipy.sparse as sp
+
+    from pmht_opt.constraints.base import ConstraintContext
+    from pmht_opt.model import PX, PY
+    from pmht_opt.mstep.formulation import BLOCK, QPLayout, dynamics_rows, in_increments
+    from pmht_opt.mstep.rows import RowBuilder, assemble
+
+    sc = po.paper_scenario("C", seed=0, horizon=40)
+    T, model, x0 = sc.horizon, sc.model, sc.initial_states[0]
+    lay = QPLayout(1, T)
+    A_dyn, b_dyn = dynamics_rows(model, lay, x0[None, :])
+    states = model.propagate(sc.initial_states, T)
+    ctx = ConstraintContext(scenario=sc, states=states)
+    cons = [po.SpeedLimit(1e-2), po.AccelLimit(1e-5), po.Terminal(position=(1.0, 2.0))]
+    rows = RowBuilder(cons, conic=True).rows(ctx, [0, 1, 2])[0]
+    t_idx = np.arange(1, T + 1)
+    col_map = lay.x(0, t_idx[:, None], np.arange(6)).ravel()
+    extra = assemble(rows.items, lay.n, col_map, units=lay.units)
+    A2, b2 = in_increments(extra.A, extra.b, A_dyn, b_dyn, lay.n)
+    rng = np.random.default_rng(3)
+    u = rng.normal(size=(T, 6))
+    x = np.empty((T + 1, 6))
+    x[0] = x0
+    for t in range(1, T + 1):
+        x[t] = model.F @ x[t - 1] + model.L @ u[t - 1]
+    z = np.concatenate([x[1:] / lay.units, u], axis=1).ravel()
+    assert np.max(np.abs(A_dyn @ z - b_dyn)) < 1e-12
+    before, after = extra.b - extra.A @ z, b2 - A2 @ z
+    np.testing.assert_allclose(after, before, rtol=1e-9, atol=1e-12)
+    # The speed and acceleration rows (all but the terminal's, the last 2) no longer touch a position.
+    pos_cols = np.flatnonzero(np.isin(np.arange(lay.n) % BLOCK, [PX, PY]))
+    assert sp.csr_matrix(A2)[: A2.shape[0] - 2][:, pos_cols].nnz == 0
+    assert extra.A[:, pos_cols].nnz > 0
+    halved = assemble(rows.items, lay.n, col_map, units=lay.units)
+    halved.A.data[:] = 0.5 * halved.A.data
+    A3, _ = in_increments(halved.A, halved.b, A_dyn, b_dyn, lay.n)
+    assert np.array_equal(A3.indptr, A2.indptr) and np.array_equal(A3.indices, A2.indices)

@@ -27,7 +27,7 @@ import scipy.sparse as sp
 import solvers
 from pmht_opt.exceptions import InfeasibleError, PmhtOptError, SolverError
 from pmht_opt.model import MotionModel
-from pmht_opt.mstep.formulation import QPLayout, dynamics_rows, start_frame
+from pmht_opt.mstep.formulation import QPLayout, dynamics_rows, in_increments, start_frame
 from pmht_opt.mstep.rows import PlatformRows, SlackOwner, assemble
 
 #: Slacks above this fraction of a constraint's own size (or absolute, for linear rows) mark a culprit.
@@ -56,11 +56,12 @@ def phase_one(
         (A_dyn.data, A_dyn.indices, np.concatenate([A_dyn.indptr, np.full(extra.n_slack, A_dyn.indptr[-1])])),
         shape=(A_dyn.shape[0], width),
     )
+    rows_A, rows_b = in_increments(extra.A, extra.b, A_dyn, b_dyn, layout.n)
     problem = solvers.QPProblem(
         P=sp.csc_matrix((width, width)),
         q=np.concatenate([np.zeros(layout.n), extra.slack_cost]),
-        A=sp.vstack([A_dyn, extra.A], format="csc"),
-        b=np.concatenate([b_dyn, extra.b]),
+        A=sp.vstack([A_dyn, rows_A], format="csc"),
+        b=np.concatenate([b_dyn, rows_b]),
         cones=(solvers.Zero(A_dyn.shape[0]), *extra.cones),
     )
     sol = session_class(problem).solve()

@@ -21,7 +21,7 @@ import scipy.sparse as sp
 import solvers
 from pmht_opt.exceptions import ConfigError, SolverError
 from pmht_opt.model import PX, PY, STATE_DIM, MotionModel
-from pmht_opt.mstep.formulation import QPLayout, dynamics_rows
+from pmht_opt.mstep.formulation import QPLayout, dynamics_rows, in_increments
 from pmht_opt.mstep.rows import ExtraRows, PlatformRows, assemble
 
 #: A backend session keeps its setup-time scaling while ``r`` stays within this factor of its setup ``r``.
@@ -77,8 +77,11 @@ class PlatformQP:
         constrained_settings: dict[str, Any] | None = None,
         retries: solvers.RetryChain = solvers.NO_RETRY,
         constrained_retries: solvers.RetryChain | None = None,
+        margin: float = 0.0,
     ) -> None:
         self.model = model
+        #: The least absolute back-off of hard cones (:func:`~pmht_opt.mstep.rows.assemble`).
+        self.margin = margin
         self.x0 = x0
         self.horizon = horizon
         self.session_class = session_class
@@ -109,7 +112,9 @@ class PlatformQP:
         if horizon not in self._qps:
             if len(self._qps) >= self.CACHE:
                 self._qps.pop(next(iter(self._qps)))
-            self._qps[horizon] = HorizonQP(self.model, self.x0, horizon, self.session_class, self.state)
+            self._qps[horizon] = HorizonQP(
+                self.model, self.x0, horizon, self.session_class, self.state, self.margin
+            )
         return self._qps[horizon]
 
     def solve(
@@ -149,6 +154,8 @@ class HorizonQP:
     The backend session is created at the first solve, with real weights: both backends compute their
     scaling (equilibration) at setup, and a setup with every position weight at zero leaves Clarabel
     badly scaled for every later update.
+
+    ``margin`` is the least absolute back-off of its hard cones (:func:`~pmht_opt.mstep.rows.assemble`).
     """
 
     def __init__(
@@ -158,7 +165,9 @@ class HorizonQP:
         horizon: int,
         session_class: type[solvers.QPSession],
         state: Settings,
+        margin: float = 0.0,
     ) -> None:
+        self.margin = margin
         self.layout = lay = QPLayout(1, horizon)
         #: The layout of a QP without constraint rows, in the states' own units (:meth:`layout_for`).
         self.plain_layout = QPLayout(1, horizon, scaled=False)
@@ -236,9 +245,10 @@ class HorizonQP:
             A_dyn = sp.csc_matrix(
                 (A_dyn.data, A_dyn.indices, indptr), shape=(A_dyn.shape[0], extra.A.shape[1])
             )
-        A = sp.vstack([A_dyn, extra.A], format="csc")
+        rows_A, rows_b = in_increments(extra.A, extra.b, A_dyn, b_dyn, self.layout.n)
+        A = sp.vstack([A_dyn, rows_A], format="csc")
         A.sort_indices()
-        return A, np.concatenate([b_dyn, extra.b]), (zero, *extra.cones)
+        return A, np.concatenate([b_dyn, rows_b]), (zero, *extra.cones)
 
     @property
     def options(self) -> dict[str, Any]:
@@ -273,7 +283,9 @@ class HorizonQP:
         self._rows_key = key
         self.extra = None
         if rows and rows.items:
-            self.extra = assemble(rows.items, self.layout.n, self.col_map, units=self.layout.units)
+            self.extra = assemble(
+                rows.items, self.layout.n, self.col_map, units=self.layout.units, margin=self.margin
+            )
         pattern = None if self.extra is None else self.extra.pattern_key()
         q = self._cost(W, WZ, r)
         A, b, cones = self._constraints()

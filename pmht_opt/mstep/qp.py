@@ -25,10 +25,14 @@ from pmht_opt.mstep.tuning import (
     cvxpy_retries,
 )
 from pmht_opt.scenario import Scenario
+from pmht_opt.verify import resolution
 
 #: Largest violation of a platform's rows by the exact unconstrained optimum for it to be taken as the
 #: constrained optimum without a solve (rounding of positions of order 10 is far below it).
 SCREEN_TOL = 1e-10
+#: The least back-off of hard cones, in units of the positions' resolution
+#: (:func:`~pmht_opt.verify.resolution`).
+MARGIN_RESOLUTIONS = 8.0
 
 
 def check_solution(sol: solvers.QPSolution, accept_inaccurate: bool, platform: int | None = None) -> None:
@@ -110,6 +114,7 @@ class QPMStep(MStep):
             self.constrained_options,
             retries,
             self.constrained_retries,
+            margin=MARGIN_RESOLUTIONS * resolution(self.scenario),
         )
 
     def _screen(self, data: MStepData, rows: dict[int, PlatformRows], exact_states: np.ndarray) -> list[int]:

@@ -185,6 +185,7 @@ def assemble(
     col_map: np.ndarray,
     origin: np.ndarray | None = None,
     units: np.ndarray | None = None,
+    margin: float = 0.0,
 ) -> ExtraRows:
     """Rows for ``imposed`` blocks on a QP with ``n_vars`` variables; ``col_map[j]`` is the QP column of
     stacked-state entry ``j``. Soft blocks get slack columns after the QP's own (module docstring).
@@ -193,6 +194,7 @@ def assemble(
     from: a block ``h - G z`` on the states ``z = origin + z'`` is written ``(h - G origin) - G z'``.
     ``units`` (``(6,)``, or ``None`` for ones) is the size of one unit of the QP's variable per state
     component (:func:`~pmht_opt.mstep.formulation.state_units`): ``G``'s columns are multiplied by it.
+    ``margin`` is the least absolute back-off of a hard cone (:func:`_backed_off`).
     """
     n_slack = sum(i.block.units // i.block.group for i in imposed if i.soft)
     out = _Rows(col_map)
@@ -204,7 +206,7 @@ def assemble(
         G, h, unit_scale = _normalised(blk, origin, units)
         k = G.shape[0]
         if not item.soft:
-            out.block(G, 1.0, _backed_off(blk, h))
+            out.block(G, 1.0, _backed_off(blk, h, margin * unit_scale))
             out.cones.extend(_hard_cones(blk.kind, k, blk.dim))
             continue
         n = blk.units // blk.group
@@ -272,8 +274,9 @@ def _normalised(
     return G, h * per_row, scale
 
 
-def _backed_off(blk: Block, h: np.ndarray) -> np.ndarray:
-    """``h`` of a hard block (normalised by :func:`_normalised`) tightened by :data:`BACKOFF`.
+def _backed_off(blk: Block, h: np.ndarray, least: np.ndarray | float = 0.0) -> np.ndarray:
+    """``h`` of a hard block (normalised by :func:`_normalised`) tightened by :data:`BACKOFF`, each
+    cone by at least ``least`` (per unit, relative to its radius; at most half of it).
 
     An interior-point solver meets its rows to a tolerance relative to the norms of the whole problem
     (thousands of variables, positions of order 10), which can leave one row 1e-7 out in absolute
@@ -281,11 +284,18 @@ def _backed_off(blk: Block, h: np.ndarray) -> np.ndarray:
     5e-11, past the verification's 1e-6. Imposing each hard cone at ``1 - BACKOFF`` of its radius and
     each inequality ``BACKOFF max(|h|, 1)`` inside its bound keeps that error on the safe side, at a
     cost far below anything a plan can show. Equalities and cones of zero radius are left as they are.
+
+    A cone of a tiny radius (an acceleration limit of 1e-9 bounds second differences of positions of
+    size 10 to 1e-9) is also tightened by an absolute margin, ``least`` times its radius: the
+    positions' own rounding, which verification allows (:func:`pmht_opt.verify.resolution`), and
+    a solve's error in them, are then inside the limit. With the relative back-off alone, 1e-14,
+    such a plan broke its limit by 4.5e-13 against the verification's 1.1e-13.
     """
     if blk.kind == "soc":
         out = h.copy()
         radius = out[:: blk.dim]
-        radius[radius > 0] -= BACKOFF  # normalised: the radius is 1
+        cut = np.minimum(np.maximum(BACKOFF, np.broadcast_to(least, radius.shape)), 0.5)
+        radius[radius > 0] -= cut[radius > 0]  # normalised: the radius is 1
         return out
     if blk.kind == "nonneg":
         return h - BACKOFF * np.maximum(np.abs(h), 1.0)
