@@ -10,6 +10,7 @@ import numpy as np
 
 import solvers
 from pmht_opt.constraints.base import Constraint
+from pmht_opt.constraints.blocks import Block
 from pmht_opt.exceptions import InfeasibleError, PmhtOptError, SolverError, UnknownSolverError
 from pmht_opt.mstep.banded import axis_states
 from pmht_opt.mstep.base import MStep, MStepData, MStepOutput, check_cvxpy_solver
@@ -28,11 +29,12 @@ from pmht_opt.scenario import Scenario
 from pmht_opt.verify import resolution
 
 #: Largest violation of a platform's rows by the exact unconstrained optimum for it to be taken as the
-#: constrained optimum without a solve (rounding of positions of order 10 is far below it).
+#: constrained optimum without a solve (rounding of positions of order 10 is far below it); relative
+#: to the radius of a cone below 1, so that a limit of 1e-9 is not taken as met 1e-10 beyond it.
 SCREEN_TOL = 1e-10
 #: The least back-off of hard cones, in units of the positions' resolution
 #: (:func:`~pmht_opt.verify.resolution`).
-MARGIN_RESOLUTIONS = 8.0
+MARGIN_RESOLUTIONS = 64.0
 
 
 def check_solution(sol: solvers.QPSolution, accept_inaccurate: bool, platform: int | None = None) -> None:
@@ -52,6 +54,13 @@ def check_solution(sol: solvers.QPSolution, accept_inaccurate: bool, platform: i
         backend=sol.backend,
         status=sol.raw_status,
     )
+
+
+def _screen_tol(block: Block) -> np.ndarray | float:
+    """The screening tolerance of each unit of ``block`` (:data:`SCREEN_TOL`)."""
+    if block.kind != "soc":
+        return SCREEN_TOL
+    return SCREEN_TOL * np.clip(block.h[:: block.dim], 0.0, 1.0)
 
 
 class QPMStep(MStep):
@@ -131,9 +140,7 @@ class QPMStep(MStep):
             items = rows[m].items if m in rows else []
             if items:
                 z = exact_states[m, 1:].reshape(-1)
-                exact_ok[m] = all(
-                    float(np.max(i.block.residual(z), initial=0.0)) <= SCREEN_TOL for i in items
-                )
+                exact_ok[m] = all(np.all(i.block.residual(z) <= _screen_tol(i.block)) for i in items)
             else:
                 exact_ok[m] = self.exact_unconstrained or bool(idle[m])
         return [int(m) for m in np.flatnonzero(~exact_ok)]
