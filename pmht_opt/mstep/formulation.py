@@ -170,10 +170,12 @@ def in_increments(
     The dynamics make each increment :math:`p_s - p_{s-1}` a function of the velocity, acceleration
     and process noise (``(F x_{s-1})_p - p_{s-1} + (L u_s)_p``), so subtracting ``e_s`` times the
     position row of step ``s`` of the dynamics (``A_dyn``, ``b_dyn``: equalities, so the rows mean the
-    same) removes the positions from the row. A row on ``p_1`` alone (the first step's change) is
-    rewritten the same way. Why: a speed or acceleration limit of 1e-5 is a cone of radius 1e-5 on
-    differences of positions of size 10; normalised by its radius its coefficients are 2e5 beside
-    dynamics rows of order 1, and Clarabel stalled on it ("insufficient progress"). On the increments
+    same) removes the positions from the row. A row whose earliest position is ``p_1`` is rewritten the
+    same way whatever its sum (the known ``p_0`` takes the rest: the first steps' differences, and a
+    visit at a step whose window starts at 1). Why: a speed or acceleration limit of 1e-5 is a cone of
+    radius 1e-5 on differences of positions of size 10; normalised by its radius its coefficients are
+    2e5 beside dynamics rows of order 1, and Clarabel stalled on it ("insufficient progress"). On the
+    increments
     the largest coefficient was 1e3 and the same M-step solved in 12 iterations.
 
     The sparsity pattern of the result depends only on that of ``A`` (coefficients that cancel
