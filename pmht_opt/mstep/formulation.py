@@ -175,8 +175,7 @@ def in_increments(
     visit at a step whose window starts at 1). Why: a speed or acceleration limit of 1e-5 is a cone of
     radius 1e-5 on differences of positions of size 10; normalised by its radius its coefficients are
     2e5 beside dynamics rows of order 1, and Clarabel stalled on it ("insufficient progress"). On the
-    increments
-    the largest coefficient was 1e3 and the same M-step solved in 12 iterations.
+    increments the largest coefficient was 1e3 and the same M-step solved in 12 iterations.
 
     The sparsity pattern of the result depends only on that of ``A`` (coefficients that cancel
     exactly are dropped by position, not by value), so a session can take new numbers in place.
