@@ -185,36 +185,13 @@ def in_increments(
     state = col < n
     comp = np.where(state, col % BLOCK, -1)
     step = np.where(state, col // BLOCK + 1, 0)
-    on_pos = (comp == PX) | (comp == PY)
-    # Rows eligible: every state entry on a position, per axis coefficients summing to zero (or
-    # touching p_1 first, where no increment before the stencil is needed).
-    other_state = np.zeros(A.shape[0], dtype=bool)
-    other_state[row[state & ~on_pos]] = True
-    eligible = np.zeros(A.shape[0], dtype=bool)
-    eligible[row[on_pos]] = True
-    eligible &= ~other_state
-    pos = on_pos & eligible[row]
-    if not np.any(pos):
-        return A.tocsc(), b
-    axis = (comp[pos] == PY).astype(int)
-    key = row[pos] * 2 + axis  # one difference per (row, axis)
-    total = np.zeros(2 * A.shape[0])
-    scale = np.zeros(2 * A.shape[0])
-    np.add.at(total, key, val[pos])
-    np.add.at(scale, key, np.abs(val[pos]))
-    first = np.full(2 * A.shape[0], np.iinfo(np.int64).max)
-    np.minimum.at(first, key, step[pos])
-    ok_key = (np.abs(total) <= 1e-12 * scale) | (first == 1)
-    bad_rows = np.unique(key[~ok_key[key]] // 2)
-    eligible[bad_rows] = False
-    pos = on_pos & eligible[row]
+    pos, first = _differences(A.shape[0], row, comp, step, val)
     if not np.any(pos):
         return A.tocsc(), b
     # e_s for s from the row's first step to each entry's step: entry (j, c_j) adds c_j to e_s, s <= j.
     r_pos, s_pos, c_pos = row[pos], step[pos], val[pos]
     ax_pos = np.where(comp[pos] == PY, PY, PX)
-    k_pos = r_pos * 2 + (ax_pos == PY)
-    lo = first[k_pos]
+    lo = first[r_pos * 2 + (ax_pos == PY)]
     span = s_pos - lo + 1
     rep = np.repeat(np.arange(r_pos.size), span)
     s_all = lo[rep] + (np.arange(rep.size) - np.repeat(np.cumsum(span) - span, span))
@@ -224,25 +201,56 @@ def in_increments(
     )
     E.sum_duplicates()
     E_coo = E.tocoo()  # explicit zeros kept: the pattern must not depend on the values
-    er, ec, ev = E_coo.row, E_coo.col, E_coo.data
-    # The product E @ A_dyn by hand: scipy's drops entries that cancel.
-    D = A_dyn.tocsr()
-    starts, lengths = D.indptr[ec], np.diff(D.indptr)[ec]
-    offsets = np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths)
-    idx = np.repeat(starts, lengths) + offsets
-    p_row = np.repeat(er, lengths)
-    p_col = D.indices[idx]
-    p_val = -np.repeat(ev, lengths) * D.data[idx]
-    p_comp = p_col % BLOCK
-    keep_p = ~((p_comp == PX) | (p_comp == PY)) | (p_col >= n)
-    # Positions cancel: p_j has c_j - e_j + e_{j+1} = 0, for every j of an eligible row.
-    keep_a = ~pos
+    p_row, p_col, p_val = _times_dynamics(E_coo, A_dyn, n)
+    keep_a = ~pos  # positions cancel: p_j has c_j - e_j + e_{j+1} = 0 in every rewritten row
     out = sp.coo_matrix(
         (
-            np.concatenate([val[keep_a], p_val[keep_p]]),
-            (np.concatenate([row[keep_a], p_row[keep_p]]), np.concatenate([col[keep_a], p_col[keep_p]])),
+            np.concatenate([val[keep_a], p_val]),
+            (np.concatenate([row[keep_a], p_row]), np.concatenate([col[keep_a], p_col])),
         ),
         shape=A.shape,
     ).tocsc()
     out.sort_indices()
     return out, b - E_coo @ b_dyn
+
+
+def _differences(
+    n_rows: int, row: np.ndarray, comp: np.ndarray, step: np.ndarray, val: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """For the entries of rows (COO ``row``, state component ``comp`` or -1, ``step``, ``val``): the
+    mask of position entries in rows :func:`in_increments` rewrites, and each ``(row, axis)``'s earliest
+    step (index ``2 row + axis``, ``axis`` 1 for y).
+
+    A row is rewritten if every state entry is on a position and, per axis, its coefficients sum to
+    zero or its earliest step is 1.
+    """
+    on_pos = (comp == PX) | (comp == PY)
+    eligible = np.zeros(n_rows, dtype=bool)
+    eligible[row[on_pos]] = True
+    eligible[row[(comp >= 0) & ~on_pos]] = False
+    pos = on_pos & eligible[row]
+    key = row[pos] * 2 + (comp[pos] == PY)
+    total = np.zeros(2 * n_rows)
+    scale = np.zeros(2 * n_rows)
+    np.add.at(total, key, val[pos])
+    np.add.at(scale, key, np.abs(val[pos]))
+    first = np.full(2 * n_rows, np.iinfo(np.int64).max)
+    np.minimum.at(first, key, step[pos])
+    ok = (np.abs(total) <= 1e-12 * scale) | (first == 1)
+    eligible[np.unique(key[~ok[key]] // 2)] = False
+    return on_pos & eligible[row], first
+
+
+def _times_dynamics(E: sp.coo_matrix, A_dyn: sp.csc_matrix, n: int) -> tuple[np.ndarray, ...]:
+    """The entries ``(rows, cols, values)`` of ``-E @ A_dyn`` off the position columns, every product
+    term kept (scipy's product drops terms that cancel, which would make the pattern depend on values)."""
+    D = A_dyn.tocsr()
+    starts, lengths = D.indptr[E.col], np.diff(D.indptr)[E.col]
+    offsets = np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    idx = np.repeat(starts, lengths) + offsets
+    rows = np.repeat(E.row, lengths)
+    cols = D.indices[idx]
+    vals = -np.repeat(E.data, lengths) * D.data[idx]
+    comp = cols % BLOCK
+    keep = ~((comp == PX) | (comp == PY)) | (cols >= n)
+    return rows[keep], cols[keep], vals[keep]
