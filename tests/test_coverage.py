@@ -64,6 +64,14 @@ def test_every_locale_within_the_radius(kind: str, radius: float) -> None:
     assert np.all(np.linalg.norm(at - sc.locales, axis=1) <= radius * (1 + 1e-6))
 
 
+def test_a_small_radius_on_b_seed_17_covers_every_locale() -> None:
+    # At radius 0.05 the first iterate was closest to two discs that no point meets at one step, and
+    # the plan ended in an InfeasibleError naming the planner's own VisitDiscs (7 of 100 on B, 2 on C).
+    sc = po.paper_scenario("B", seed=17)
+    res = po.plan_coverage(sc, 0.05, po.PMHTConfig(threads=1), seed=17)
+    assert_covers(res, 0.05)
+
+
 def test_default_radius_is_the_scenarios() -> None:
     sc = small_scenario("C", seed=2).replace(coverage_radius=0.2)
     res = po.plan_coverage(sc, config=po.PMHTConfig(threads=1))

@@ -35,6 +35,7 @@ import numpy as np
 from pmht_opt.constraints.base import Constraint, ConstraintContext, ConstraintReport
 from pmht_opt.constraints.blocks import Block, disc_block
 from pmht_opt.constraints.terminal import Terminal
+from pmht_opt.constraints.visits import SHARED_RADIUS
 from pmht_opt.em import EMRun
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.model import POS, PX, PY, VEL
@@ -51,7 +52,8 @@ class VisitDiscs(Constraint):
     stay on the real locales. The step is re-chosen at every iteration: the step within ``window`` of
     ``times[n]`` at which the current iterate is closest to the locale. A path that met the discs at
     the last iteration's steps meets them at these too, so once one iteration is feasible every later
-    one is.
+    one is. An iterate that does not meet them yet (the first) can be closest to two discs that no
+    point meets at one step; that platform then keeps the given ``times`` for the iteration.
     """
 
     needs = frozenset({"soc"})
@@ -81,6 +83,10 @@ class VisitDiscs(Constraint):
         for n, (m, t) in enumerate(zip(self.platform, self.times, strict=True)):
             lo, hi = max(1, t - self.window), min(T, t + self.window)
             out[n] = lo + int(np.argmin(np.hypot(*(pos[m, lo : hi + 1] - self.centres[n]).T)))
+        for m in np.unique(self.platform):
+            mine = np.flatnonzero(self.platform == m)
+            if _clash(out[mine], self.centres[mine], self.radius):
+                out[mine] = self.times[mine]
         return out
 
     def blocks(self, ctx: ConstraintContext) -> list[Block]:
@@ -175,6 +181,22 @@ class SpeedProfile:
                 s > self.length - 0.5 * v * b, n - np.sqrt(np.maximum(2 * b * (self.length - s) / v, 0)), t
             )
         return t
+
+
+def _clash(steps: np.ndarray, centres: np.ndarray, radius: float) -> bool:
+    """Whether two of one platform's discs share a step although no point meets both (their centres at
+    least ``2 SHARED_RADIUS radius`` apart: :data:`~pmht_opt.constraints.visits.SHARED_RADIUS`)."""
+    order = np.argsort(steps, kind="stable")
+    steps, centres = steps[order], centres[order]
+    if not np.any(np.diff(steps) == 0):
+        return False
+    groups = np.split(np.arange(steps.size), np.flatnonzero(np.diff(steps)) + 1)
+    for g in groups:
+        if g.size > 1:
+            d = np.hypot(*(centres[g][:, None, :] - centres[g][None, :, :]).transpose(2, 0, 1))
+            if np.any(d >= 2.0 * SHARED_RADIUS * radius):
+                return True
+    return False
 
 
 def _visit_steps(t_real: np.ndarray, T: int, apart: np.ndarray) -> np.ndarray:
