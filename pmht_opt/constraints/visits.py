@@ -22,6 +22,12 @@ if TYPE_CHECKING:
 SHARED_RADIUS = 0.999
 
 
+def can_share_step(apart: np.ndarray, radius: float) -> np.ndarray:
+    """Whether discs of ``radius`` whose centres are ``apart`` may be visited at one step: a point must
+    meet both with room to spare (:data:`SHARED_RADIUS`)."""
+    return np.asarray(apart) < 2.0 * SHARED_RADIUS * radius
+
+
 def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """``(platform (N,), time (N,))`` each locale must be visited at, from ``ctx.estep``.
 
@@ -57,7 +63,7 @@ def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np
         gap = np.maximum(apart - 2.0 * radius, 0.0)
         gap = np.concatenate([[max(float(np.hypot(*(starts[m] - locales[n]))) - radius, 0.0)], gap])
         # At one step, discs that barely touch clash too (docstring).
-        apart_at_once = np.concatenate([[0.0], apart >= 2.0 * SHARED_RADIUS * radius])
+        apart_at_once = np.concatenate([[0.0], ~can_share_step(apart, radius)])
         vref = 2.0 * max(float(speed[m]), 1e-9)
 
         def clash(

@@ -35,7 +35,7 @@ import numpy as np
 from pmht_opt.constraints.base import Constraint, ConstraintContext, ConstraintReport
 from pmht_opt.constraints.blocks import Block, disc_block
 from pmht_opt.constraints.terminal import Terminal
-from pmht_opt.constraints.visits import SHARED_RADIUS
+from pmht_opt.constraints.visits import can_share_step
 from pmht_opt.em import EMRun
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.model import POS, PX, PY, VEL
@@ -184,19 +184,11 @@ class SpeedProfile:
 
 
 def _clash(steps: np.ndarray, centres: np.ndarray, radius: float) -> bool:
-    """Whether two of one platform's discs share a step although no point meets both (their centres at
-    least ``2 SHARED_RADIUS radius`` apart: :data:`~pmht_opt.constraints.visits.SHARED_RADIUS`)."""
-    order = np.argsort(steps, kind="stable")
-    steps, centres = steps[order], centres[order]
-    if not np.any(np.diff(steps) == 0):
-        return False
-    groups = np.split(np.arange(steps.size), np.flatnonzero(np.diff(steps)) + 1)
-    for g in groups:
-        if g.size > 1:
-            d = np.hypot(*(centres[g][:, None, :] - centres[g][None, :, :]).transpose(2, 0, 1))
-            if np.any(d >= 2.0 * SHARED_RADIUS * radius):
-                return True
-    return False
+    """Whether two of one platform's discs share a step although no point meets both
+    (:func:`~pmht_opt.constraints.visits.can_share_step`)."""
+    same = steps[:, None] == steps[None, :]
+    apart = np.hypot(*(centres[:, None, :] - centres[None, :, :]).transpose(2, 0, 1))
+    return bool(np.any(same & ~can_share_step(apart, radius)))
 
 
 def _visit_steps(t_real: np.ndarray, T: int, apart: np.ndarray) -> np.ndarray:

@@ -187,11 +187,9 @@ class HorizonQP:
         diag[u_idx] = 1.0
         self.diag = diag
         self.stored = np.flatnonzero(stored)
-        #: Dynamics rows and right-hand side without (``False``) and with constraint rows.
-        self._dynamics = {
-            constrained: dynamics_rows(model, self.layout_for(constrained), x0[None, :])
-            for constrained in (False, True)
-        }
+        self._model, self._x0 = model, x0
+        #: Dynamics rows and right-hand side without (``False``) and with constraint rows, made on first use.
+        self._dynamics: dict[bool, tuple[sp.csc_matrix, np.ndarray]] = {}
         self.problem: solvers.QPProblem | None = None
         self.session: solvers.QPSession | None = None
         self.extra: ExtraRows | None = None
@@ -236,7 +234,12 @@ class HorizonQP:
 
     def _constraints(self) -> tuple[sp.csc_matrix, np.ndarray, tuple[solvers.Cone, ...]]:
         extra = self.extra
-        A_dyn, b_dyn = self._dynamics[extra is not None]
+        constrained = extra is not None
+        if constrained not in self._dynamics:
+            self._dynamics[constrained] = dynamics_rows(
+                self._model, self.layout_for(constrained), self._x0[None, :]
+            )
+        A_dyn, b_dyn = self._dynamics[constrained]
         zero = solvers.Zero(A_dyn.shape[0])
         if extra is None:
             return A_dyn, b_dyn, (zero,)

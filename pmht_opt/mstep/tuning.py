@@ -19,9 +19,8 @@ Why each value (figures in docs/decisions.md sections 2 and 3):
   a constrained M-step turn equilibration off (A seed 68 with ``VisitAll(0.1)``: "almost solved" under
   every other set, solved without it), then accept a primal feasibility of 1e-7, then 1e-6 (Clarabel's
   default 1e-8; hard rows are imposed 1e-5 inside their bounds, :data:`pmht_opt.mstep.rows.BACKOFF`):
-  where a
-  limit binds over long stretches (scenario B at T = 150 with a speed limit of 0.06) the interior
-  point stalls between 2e-8 and 1e-7 and ends "almost solved" under every other setting, while the
+  where a limit binds over long stretches (scenario B at T = 150 with a speed limit of 0.06) the
+  interior point stalls between 2e-8 and 1e-7 and ends "almost solved" under every other setting, while the
   plan it returns meets the limit on the positions to 1e-9 of the limit. Not the default: at 1e-7 a
   visit disc of radius 0.1 was met only to 1.07e-6 of its radius, past the verification's 1e-6
   (:mod:`pmht_opt.verify` checks every returned plan on its positions either way).
