@@ -3,7 +3,15 @@
 Zero-cone rows become ``l = u = b``, non-negative-cone rows ``-inf <= A x <= b``. OSQP's
 solution polishing is on by default: on problems whose active set ADMM has found (always the case with
 equalities only) it returns the solution of the reduced KKT system, accurate far beyond ``eps_abs``.
-Retrying a failed solve with other settings is a policy of the caller (:mod:`solvers.retry`).
+Retrying a failed solve with other settings is a policy of the caller (:mod:`solvers.retry`); a
+retry that only raises the iteration limit or changes tolerances continues from the stopped iterate
+(:meth:`OSQPSession.resume`).
+
+``work_limit`` (a setting of this layer, not OSQP's) bounds the work of a session on one set of
+numbers: iterations times the problem's size (stored entries of ``P`` and ``A`` plus rows and
+columns, roughly proportional to the cost of an iteration), summed over the solves since the last
+update, however often the solve is resumed. Unlike OSQP's ``time_limit`` it gives the same answer on
+any machine and under any load.
 """
 
 from __future__ import annotations
@@ -65,11 +73,30 @@ def _setup_error(err: Exception) -> Exception:
     return ProblemError(f"OSQP refused the problem ({name}).")
 
 
+#: Settings OSQP changes in place between solves, so that a solve can continue from its iterate.
+RESUMABLE = frozenset(
+    {"max_iter", "eps_abs", "eps_rel", "polishing", "polish_refine_iter", "check_termination"}
+    | {"check_dualgap"}
+)
+
+
 class OSQPSession(QPSession):
     """A problem held by one ``osqp.OSQP`` workspace; updates reuse its factorisation structure."""
 
     name: ClassVar[str] = "osqp"
     supports_soc: ClassVar[bool] = False
+
+    @property
+    def size(self) -> int:
+        """The problem's size in the unit of ``work_limit``: entries of ``P`` and ``A``, rows, columns."""
+        prob = self.problem
+        return int(prob.P.nnz + prob.A.nnz + prob.n + prob.m)
+
+    def _iteration_room(self) -> int | None:
+        """Iterations left under ``work_limit`` (``None``: no limit)."""
+        if self._work_limit is None:
+            return None
+        return max(int(self._work_limit // self.size) - self._spent, 0)
 
     def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
         prob = self.problem
@@ -87,6 +114,14 @@ class OSQPSession(QPSession):
                 "approximation of the cone."
             )
         opts = {**DEFAULTS, **self.settings}
+        limit = opts.pop("work_limit", None)
+        valid = isinstance(limit, int | float) and not isinstance(limit, bool) and 0 < limit < np.inf
+        if limit is not None and not valid:
+            raise SettingsError(f"work_limit must be a positive finite number, got {limit!r}.")
+        self._work_limit: float | None = None if limit is None else float(limit)
+        self._max_iter = int(opts["max_iter"])
+        #: Iterations spent on the current numbers (reset by every update).
+        self._spent = 0
         self._solver = osqp.OSQP()
         lower, upper = self._bounds()
         prob = self.problem
@@ -107,17 +142,44 @@ class OSQPSession(QPSession):
             kwargs["Px"] = update.P_data
         if update.A_data is not None:
             kwargs["Ax"] = update.A_data
+        self._spent = 0
         if kwargs:
             try:
                 self._solver.update(**kwargs)
             except osqp.OSQPException as err:
                 raise UpdateError(f"OSQP rejected the update: {_error_name(err)}.") from err
 
+    def resume(self, **settings: Any) -> QPSolution | None:
+        """Continue from the last iterate with ``settings`` changed (only :data:`RESUMABLE` ones;
+        otherwise ``None``). ``max_iter`` counts the iterations of this solve."""
+        if not set(settings) <= RESUMABLE:
+            return None
+        try:
+            self._solver.update_settings(**settings)
+        except (TypeError, ValueError) as err:
+            raise SettingsError(f"OSQP rejected its settings: {err}") from err
+        except osqp.OSQPException as err:
+            raise _setup_error(err) from err
+        self.settings.update(settings)
+        self._max_iter = int(settings.get("max_iter", self._max_iter))
+        return self.solve()
+
     def _solve(self) -> QPSolution:
+        room = self._iteration_room()
+        if room is not None:
+            if room == 0:
+                return QPSolution(
+                    status=Status.MAX_ITER,
+                    backend=self.name,
+                    raw_status="work limit reached",
+                    info={"work_limit": self._work_limit},
+                )
+            self._solver.update_settings(max_iter=min(self._max_iter, room))
         t0 = time.perf_counter()
         res = self._solver.solve(raise_error=False)
         elapsed = time.perf_counter() - t0
         info = res.info
+        self._spent += int(info.iter)
         status = _STATUS.get(osqp.SolverStatus(info.status_val), Status.UNKNOWN)
         x = None if res.x is None or not np.all(np.isfinite(res.x)) else np.array(res.x)
         if x is None and status is Status.OPTIMAL:

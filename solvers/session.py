@@ -100,6 +100,16 @@ class QPSession(abc.ABC):
             prob.b = b
         self._apply_update(Update(P_data, q, A_data, b))
 
+    def resume(self, **settings: Any) -> QPSolution | None:
+        """Solve again from where the last solve stopped, with ``settings`` changed; ``None`` if the
+        backend cannot (the caller then opens a new session with the merged settings).
+
+        A first-order backend that stopped at its iteration limit keeps its iterate: continuing with a
+        higher limit costs only the extra iterations, where a new session starts from nothing. The
+        default is ``None``: interior-point backends have no iterate worth continuing from.
+        """
+        return None
+
     def solve(self) -> QPSolution:
         """Solve the current problem and return the backend's answer with a mapped status.
 

@@ -7,6 +7,7 @@ import pytest
 from conftest import ALL_BACKENDS, POSITION_TOL, QP_BACKENDS
 
 import pmht_opt as po
+from pmht_opt.constraints import ConstraintContext
 from pmht_opt.mstep import MStepData, make_mstep, mstep_objective
 from pmht_opt.mstep.tuning import RETRIES
 from solvers import RetryChain
@@ -84,6 +85,32 @@ def test_failed_solve_raises_solver_error_with_status(scenario_a: po.Scenario) -
         mstep.solve(data)
     assert info.value.backend == "osqp"
     assert "maximum iterations" in info.value.status
+
+
+def test_a_failed_platform_fails_the_mstep_before_the_next_is_solved(scenario_a: po.Scenario) -> None:
+    data = random_weights(scenario_a, np.random.default_rng(0), 0.3)
+    mstep = make_mstep(scenario_a, "osqp", {"max_iter": 5})
+    with pytest.raises(po.SolverError, match=r"\(platform 0\)"):
+        mstep.solve(data)
+    assert [len(block._qps) for block in mstep.blocks] == [1, 0, 0, 0]
+
+
+def test_osqp_constrained_solves_stop_at_their_work_limit(scenario_a: po.Scenario) -> None:
+    data = random_weights(scenario_a, np.random.default_rng(5), 0.5)
+    free = po.solve_mstep(scenario_a, data.W, data.WZ, data.r)
+    vmax = 0.5 * float(np.max(np.hypot(free[:, 1:, 1], free[:, 1:, 4])))
+    limit = [po.SpeedLimit(vmax)]
+    # The default constrained settings solve it; a work limit of a few iterations cannot, and the
+    # failure says that the constraints can be met (the probe) and names the limit it hit.
+    capped = po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "osqp", limit)
+    assert np.max(np.hypot(capped[:, 1:, 1], capped[:, 1:, 4])) <= vmax * (1 + 1e-3)
+    mstep = make_mstep(scenario_a, "osqp", {"work_limit": 1e6}, constraints=tuple(limit))
+    still = np.repeat(scenario_a.initial_states[:, None, :], scenario_a.horizon + 1, axis=1)
+    data = MStepData(data.W, data.WZ, data.r, ConstraintContext(scenario=scenario_a, states=still), (0,))
+    with pytest.raises(po.SolverError, match=r"maximum iterations.*can all be met"):
+        mstep.solve(data)
+    # The first platform that fails ends the M-step.
+    assert sum(len(block._qps) for block in mstep.blocks) == 1
 
 
 def test_inaccurate_solutions_are_refused_unless_accepted(scenario_a: po.Scenario) -> None:

@@ -256,3 +256,62 @@ def test_cone_constraints_group_runs_of_equal_cones() -> None:
     assert len(out) == 3  # the two cones are one vectorised constraint
     cp.Problem(cp.Minimize(-x[0] - x[1]), out).solve(solver="CLARABEL")
     np.testing.assert_allclose(x.value, [np.sqrt(0.75), 0.5, np.sqrt(0.75)], atol=1e-6)
+
+
+def box_smoothing_problem() -> QPProblem:
+    """A smoothing QP in a box: ADMM needs a few hundred iterations at tight tolerances."""
+    n = 60
+    D = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1])
+    return QPProblem(
+        P=sp.csc_matrix(sp.triu(D.T @ D + 1e-3 * sp.eye(n))),
+        q=-np.random.default_rng(0).normal(size=n),
+        A=sp.csc_matrix(sp.vstack([sp.eye(n), -sp.eye(n)])),
+        b=np.full(2 * n, 0.5),
+        cones=(Nonneg(2 * n),),
+    )
+
+
+#: OSQP settings whose iterations are reproducible (no time-based adaptive rho, a test every step).
+EXACT_ITERATIONS = {"eps_abs": 1e-9, "eps_rel": 1e-9, "adaptive_rho": False, "check_termination": 1}
+
+
+def test_osqp_resume_continues_from_its_iterate() -> None:
+    prob = box_smoothing_problem()
+    cold = solvers.open_session(prob, "osqp", polishing=False, **EXACT_ITERATIONS).solve()
+    assert cold.ok and cold.iterations > 100
+    half = cold.iterations // 2
+    session = solvers.open_session(prob, "osqp", polishing=False, max_iter=half, **EXACT_ITERATIONS)
+    assert session.solve().status is Status.MAX_ITER
+    more = session.resume(max_iter=100_000)
+    assert more is not None and more.ok
+    # Continuing costs only the iterations a single solve would still have needed.
+    assert half + more.iterations == cold.iterations
+    np.testing.assert_allclose(more.x, cold.x, atol=1e-12)
+    # A setting OSQP cannot change in place (rho) needs a new session; Clarabel never resumes.
+    assert session.resume(rho=10.0) is None
+    assert solvers.open_session(prob, "clarabel").resume(max_iter=5) is None
+
+
+def test_osqp_work_limit_bounds_every_solve_of_the_same_numbers() -> None:
+    prob = box_smoothing_problem()
+    session = solvers.open_session(prob, "osqp", polishing=False, **EXACT_ITERATIONS, work_limit=1.0)
+    assert session.size == prob.P.nnz + prob.A.nnz + prob.n + prob.m
+    room = 40
+    session = solvers.open_session(
+        prob, "osqp", polishing=False, **EXACT_ITERATIONS, work_limit=room * session.size
+    )
+    first = session.solve()
+    assert first.status is Status.MAX_ITER and first.iterations == room
+    # Resumed with a far higher iteration limit: the limit on the work still holds.
+    spent = session.resume(max_iter=100_000)
+    assert spent is not None and spent.status is Status.MAX_ITER and spent.iterations == 0
+    assert spent.raw_status == "work limit reached" and not spent.usable(accept_inaccurate=True)
+    # New numbers, new work: the limit counts the solves of one set of numbers.
+    session.update(q=prob.q * 0.5)
+    assert session.solve().iterations == room
+
+
+@pytest.mark.parametrize("limit", [0, -1.0, float("nan"), float("inf"), True, "1e9"])
+def test_osqp_work_limit_must_be_a_positive_finite_number(limit: object) -> None:
+    with pytest.raises(solvers.SettingsError, match="work_limit"):
+        solvers.open_session(box_smoothing_problem(), "osqp", work_limit=limit)

@@ -28,6 +28,7 @@ from pmht_opt.mstep.rows import ExtraRows, PlatformRows, assemble
 RESCALE = 2.0
 #: Weights at or below this fraction of a platform's largest do not extend the horizon of its QP.
 NEGLIGIBLE_WEIGHT = 1e-12
+_UNSET = object()
 
 
 def weighted_horizon(W: np.ndarray) -> int:
@@ -333,24 +334,32 @@ class HorizonQP:
         A, b, cones = self._constraints()
         n_slack = 0 if self.extra is None else self.extra.n_slack
         problem = solvers.QPProblem(P=self._P(n_slack), q=q, A=A, b=b, cones=cones)
+        assert self.session is not None
+        last: list[solvers.QPSession] = [self.session]
         if not fresh:
-            session = self._open(problem, self.options)
-            again = session.solve()
+            last[:] = [self._open(problem, self.options)]
+            again = last[0].solve()
             if again.ok:
-                self.problem, self.session = problem, session
+                self.problem, self.session = problem, last[0]
                 return again
         chain = self.state.chain(self.extra is not None)
         if not chain.sets:
             return sol
-        last: list[solvers.QPSession] = []
 
         def attempt(settings: dict[str, Any]) -> solvers.QPSolution:
+            # Continue the last session where its backend can (a first-order solver keeps its
+            # iterate); otherwise start a new one.
+            changed = {k: v for k, v in settings.items() if last[0].settings.get(k, _UNSET) != v}
+            dropped = set(last[0].settings) - set(settings)
+            resumed = None if dropped else last[0].resume(**changed)
+            if resumed is not None:
+                return resumed
             last[:] = [self.session_class(problem, **settings)]
             return last[0].solve()
 
         out, used = solvers.retry_failed(sol, self.options, chain, attempt)
-        if used is not None:  # the last session opened is the one that solved
-            self.problem, self.session = problem, last[0]
+        if used is not None:  # the last session is the one that solved
+            self.problem, self.session = last[0].problem, last[0]
             if self.extra is None:
                 self.state.plain = used
             else:

@@ -166,11 +166,17 @@ class QPMStep(MStep):
         exact_states = self._with_start(axis_states(exact.means[:, 1:]))
         active = self._screen(data, rows, exact_states)
 
-        def one(m: int) -> tuple[solvers.QPSolution, np.ndarray | None, np.ndarray | None]:
+        def one(m: int) -> tuple[solvers.QPSolution, np.ndarray, np.ndarray]:
+            # A failed platform fails the M-step at once: the platforms after it are not solved.
             platform_rows = rows.get(m)
-            return self.blocks[m].solve(
+            sol, states, u = self.blocks[m].solve(
                 data.W[:, m], data.WZ[:, m], data.r, platform_rows, probe=self._probe(m, data, platform_rows)
             )
+            if not sol.usable(self.accept_inaccurate) and platform_rows is not None and platform_rows.items:
+                raise self._diagnose(m, data, platform_rows, sol)
+            check_solution(sol, self.accept_inaccurate, platform=m)
+            assert states is not None and u is not None
+            return sol, states, u
 
         if self.threads > 1 and len(active) > 1:
             if self._pool is None:
@@ -180,13 +186,7 @@ class QPMStep(MStep):
             answers = [one(m) for m in active]
         body = exact_states[:, 1:].copy()
         noise = axis_states(exact.noise)
-        for m, (sol, states, u) in zip(active, answers, strict=True):
-            platform_rows = rows.get(m)
-            failed = not sol.usable(self.accept_inaccurate)
-            if failed and platform_rows is not None and platform_rows.items:
-                raise self._diagnose(m, data, platform_rows, sol)
-            check_solution(sol, self.accept_inaccurate, platform=m)
-            assert states is not None and u is not None
+        for m, (_, states, u) in zip(active, answers, strict=True):
             body[m], noise[m] = states, u
         sols = [sol for sol, _, _ in answers]
         out = MStepOutput(

@@ -12,8 +12,12 @@ Why each value (figures in docs/decisions.md sections 2 and 3):
   clarabel for exact constrained plans. The iteration cap of a constrained attempt is 8000 (a
   feasible constrained M-step of scenario A takes a few hundred): an infeasible one, which ADMM
   rarely certifies, then fails within seconds, and the infeasibility diagnosis names it before any
-  retry; a feasible but hard one is retried with room for 50000 iterations (guaranteed visits take
-  5000-43000 on A, B, C), then with a fixed ``rho``.
+  retry; a feasible but hard one continues from its iterate with room for 50000 more iterations
+  (guaranteed visits take 5000-43000 on A, B, C). All of it within a ``work_limit`` of 2e9
+  (iterations times the QP's size, :mod:`solvers.osqp_`): about 5 s of ADMM on this project's
+  2-core reference machine, so that a platform OSQP cannot solve fails in seconds; guaranteed visits
+  alone (a size of about 36k on A) keep their 50000 iterations, a speed limit on every step with
+  visits (about 163k) gets 12000.
 * Clarabel: iterative refinement of the KKT solves roughly doubles the time of a constrained M-step and
   is not needed on well-scaled ones, so it is off by default and the first retry. The last retries of
   a constrained M-step turn equilibration off (A seed 68 with ``VisitAll(0.1)``: "almost solved" under
@@ -69,6 +73,7 @@ CONSTRAINED_DEFAULTS: dict[str, dict[str, Any]] = {
         "check_dualgap": False,
         "check_termination": 25,
         "max_iter": 8000,
+        "work_limit": 2e9,
     },
     "clarabel": {"iterative_refinement_enable": False},
 }
@@ -88,7 +93,8 @@ RETRIES: dict[str, RetryChain] = {
 
 #: Settings tried in turn after a failed solve with constraint rows (backends not listed: :data:`RETRIES`).
 #: OSQP's first constrained attempt stops at 8000 iterations; then, once the infeasibility diagnosis
-#: has found the rows feasible, the same settings with room for 50000, then a fixed ``rho``.
+#: has found the rows feasible, it continues from its iterate with room for 50000 more, within the
+#: session's ``work_limit``.
 CONSTRAINED_RETRIES: dict[str, RetryChain] = {
     "clarabel": RetryChain(
         (
@@ -98,7 +104,7 @@ CONSTRAINED_RETRIES: dict[str, RetryChain] = {
             {"tol_feas": 1e-6},
         )
     ),
-    "osqp": RetryChain(({"max_iter": 50_000}, {"rho": 100.0, "adaptive_rho": False, "max_iter": 20_000})),
+    "osqp": RetryChain(({"max_iter": 50_000},)),
 }
 
 #: Options of Clarabel inside cvxpy on unconstrained M-steps: the clarabel backend's tolerances (cvxpy
