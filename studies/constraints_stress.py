@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 import pmht_opt as po
+from pmht_opt.em import EMCallbacks
 from pmht_opt.verify import RTOL
 from studies.constraint_measures import measure
 from studies.options import Choices, StudyOptions, option
@@ -167,11 +168,39 @@ CASES: dict[str, Case] = {
 }
 
 
+class MStepClock:
+    """Wall time of each M-step of a plan, read from the EM loop's callbacks.
+
+    An M-step runs from the E-step before it to its own end; a plan that stops inside an M-step (the
+    solve failed) has that M-step end when the error reaches the study.
+    """
+
+    def __init__(self) -> None:
+        self.started: float | None = None
+        self.durations: list[float] = []
+        self.callbacks = EMCallbacks(after_estep=self._start, after_mstep=self._stop)
+
+    def _start(self, run: object, estep: object) -> None:
+        self.started = time.perf_counter()
+
+    def _stop(self, run: object, output: object) -> None:
+        if self.started is not None:
+            self.durations.append(time.perf_counter() - self.started)
+        self.started = None
+
+    def slowest(self, failed: bool) -> float | None:
+        """The longest M-step (``None`` if none ran), counting one cut short by a failure."""
+        if failed and self.started is not None:
+            self._stop(None, None)
+        return max(self.durations) if self.durations else None
+
+
 def trial(kind: str, case: str, backend: str) -> dict[str, Any]:
     """Plan ``kind`` under ``case`` with ``backend``; the outcome and the independent measurements."""
     sc = scenario(kind)
     constraints = CASES[case].build(sc)
     cfg = po.PMHTConfig(solver=backend, constraints=constraints, threads=1)
+    clock = MStepClock()
     t0 = time.perf_counter()
     row: dict[str, Any] = {
         "raised": None,
@@ -183,7 +212,7 @@ def trial(kind: str, case: str, backend: str) -> dict[str, Any]:
         "excursion": None,
     }
     try:
-        res = po.plan_pmht(sc, cfg)
+        res = po.plan_pmht(sc, cfg, callbacks=clock.callbacks)
     except po.InfeasibleError as err:
         row.update(outcome="infeasible", raised=type(err).__name__, message=str(err)[:300])
     except po.PmhtOptError as err:
@@ -200,6 +229,7 @@ def trial(kind: str, case: str, backend: str) -> dict[str, Any]:
             excursion=res.max_excursion(),
         )
     row["seconds"] = time.perf_counter() - t0
+    row["slowest_mstep"] = clock.slowest(failed=row["outcome"] != "solved")
     row["tolerance"] = RTOL.get(backend, 1e-6)
     feasible = CASES[case].feasible
     row["expected"] = "unknown" if feasible is None else ("feasible" if feasible else "infeasible")
@@ -219,6 +249,7 @@ RESULTS = {
     "coverage": "float?",
     "excursion": "float?",
     "seconds": "float",
+    "slowest_mstep": "float?",
 }
 TABLE = TrialTable.of(
     "constraints_stress",
@@ -226,6 +257,7 @@ TABLE = TrialTable.of(
     RESULTS,
     {
         **OUTCOME_CHECKS,
+        "slowest_mstep": Check("skip", reason="wall time"),
         "violation": Check("close", rtol=1e-3, atol=1e-9, reason="last digits of the solvers' iterates"),
         "distance": ITERATES,
         "excursion": ITERATES,
@@ -252,6 +284,7 @@ def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
                 "max_violation": float(solved["violation"].max()) if len(solved) else 0.0,
                 "median_seconds": float(g["seconds"].median()),
                 "max_seconds": float(g["seconds"].max()),
+                "max_mstep_seconds": float(g["slowest_mstep"].max()),
                 "failures": "; ".join(
                     f"{r.kind}/{r.case}: {r.raised}" for r in g[g["outcome"] == "failed"].itertuples()
                 ),
@@ -272,6 +305,7 @@ COLUMNS: Columns = (
     ("max rel. violation", lambda s: f"{s['max_violation']:.2e}"),
     ("median s", lambda s: f"{s['median_seconds']:.1f}"),
     ("max s", lambda s: f"{s['max_seconds']:.1f}"),
+    ("slowest M-step s", lambda s: f"{s['max_mstep_seconds']:.1f}"),
     ("failures", lambda s: s["failures"] or "-"),
 )
 

@@ -212,3 +212,15 @@ def test_a_missing_studies_extra_names_the_extra() -> None:
         'pandas; install the extra: pip install ".[studies]"' in done.stderr
         and "Traceback" not in done.stderr
     )
+
+
+def test_stress_trials_time_their_slowest_mstep() -> None:
+    from studies.constraints_stress import trial
+
+    # Named by the diagnosis after a failed M-step: that M-step is timed up to the error.
+    walled = trial("L", "walled-end", "clarabel")
+    assert walled["outcome"] == "infeasible"
+    assert 0.0 < walled["slowest_mstep"] <= walled["seconds"]
+    # Named by a pre-check before any M-step: nothing to time.
+    precheck = trial("L", "speed-1e-4+visit-0.05", "clarabel")
+    assert precheck["outcome"] == "infeasible" and precheck["slowest_mstep"] is None
