@@ -88,14 +88,21 @@ class EStepResult:
         """Weights of locale ``n`` as ``(T, M)``: a view for dense weights; for gated ones the row
         recomputed with every triple, so the ones the gate dropped keep their (tiny) values and order."""
         w = self.weights
+        if self.inputs is None and not isinstance(w, sp.csr_matrix):
+            return np.asarray(w[n]).reshape(-1, self.n_platforms)
+        return self.locales_weights(n, n + 1)[0]
+
+    def locales_weights(self, lo: int, hi: int) -> np.ndarray:
+        """Weights of locales ``lo .. hi - 1`` as ``(hi - lo, T, M)``, each row as :meth:`locale_weights`
+        gives it (recomputed rows agree with one another bit for bit whatever the range)."""
+        w = self.weights
         if self.inputs is not None:
-            return self.inputs.rows(n, n + 1).reshape(-1, self.n_platforms)
-        if isinstance(w, sp.csr_matrix):
-            out = np.zeros(w.shape[1])
-            lo, hi = w.indptr[n], w.indptr[n + 1]
-            out[w.indices[lo:hi]] = w.data[lo:hi]
-            return out.reshape(-1, self.n_platforms)
-        return np.asarray(w[n]).reshape(-1, self.n_platforms)
+            rows = self.inputs.rows(lo, hi)
+        elif isinstance(w, sp.csr_matrix):
+            rows = w[lo:hi].toarray()
+        else:
+            rows = np.asarray(w[lo:hi])
+        return rows.reshape(hi - lo, -1, self.n_platforms)
 
     def time_prior(self) -> np.ndarray:
         """Updated ``pi^tau[n, t] = sum_m w[n, t, m]`` (eq. 11), ``(N, T)``."""

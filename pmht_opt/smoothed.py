@@ -37,6 +37,8 @@ SMOOTHED_CONVERGED = Converged(path_rtol=3e-4, stable=3)
 
 #: How a platform's horizon is cut into sub-batches.
 SPLITS = ("equal", "distance")
+#: Weights held at once while the visit steps are chosen (entries of a block of locales' ``(T, M)`` rows).
+VISIT_BLOCK = 1 << 19
 
 
 def sub_batches(scenario: Scenario, routes: Sequence[np.ndarray], split: str = "equal") -> np.ndarray:
@@ -98,9 +100,19 @@ class TourVisits(VisitAll):
         if ctx.estep is None:
             raise ConfigError("TourVisits needs the E-step result; it can only be used inside the planner.")
         es = ctx.estep
-        times = np.empty(self.platform.shape[0], dtype=int)
-        for n, (m, (lo, hi)) in enumerate(zip(self.platform, self.windows, strict=True)):
-            times[n] = lo + int(np.argmax(es.locale_weights(n)[lo - 1 : hi, m]))
+        N = self.platform.shape[0]
+        T = es.n_times
+        steps = np.arange(1, T + 1)
+        times = np.empty(N, dtype=int)
+        # Locales a block at a time: rows of (T, M) weights each, a few MiB at most.
+        chunk = max(1, VISIT_BLOCK // (T * es.n_platforms))
+        for lo in range(0, N, chunk):
+            hi = min(lo + chunk, N)
+            own = es.locales_weights(lo, hi)[np.arange(hi - lo), :, self.platform[lo:hi]]  # (k, T)
+            window = self.windows[lo:hi]
+            inside = (steps >= window[:, :1]) & (steps <= window[:, 1:])
+            # The first most probable step inside each window (weights are finite and >= 0).
+            times[lo:hi] = 1 + np.argmax(np.where(inside, own, -np.inf), axis=1)
         return self.platform, times
 
     def visit_blocks(self, ctx: ConstraintContext) -> list[Block]:

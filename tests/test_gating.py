@@ -68,6 +68,13 @@ def _assert_same(g: EStepResult, d: EStepResult) -> None:
     # Rows recomputed with the dense arithmetic: bit for bit (ties among times broken alike).
     for n in range(0, dense_w.shape[0], 7):
         np.testing.assert_array_equal(g.locale_weights(n), d.locale_weights(n))
+    # A range of rows at once gives each row exactly as one at a time.
+    N = dense_w.shape[0]
+    for es in (g, d):
+        block = es.locales_weights(1, N)
+        assert block.shape == (N - 1, es.n_times, es.n_platforms)
+        for n in range(1, N, 5):
+            np.testing.assert_array_equal(block[n - 1], es.locale_weights(n))
 
 
 @pytest.mark.parametrize("prior", ["uniform", "dirichlet", "windows"])

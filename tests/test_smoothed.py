@@ -79,3 +79,26 @@ def test_smoothed_infeasible_names_platform_and_locale() -> None:
     routes = [list(range(k, 100, 4)) for k in range(4)]
     with pytest.raises(InfeasibleError, match=r"platform \d.*locale \d+"):
         plan_smoothed(sc, routes, PMHTConfig(max_iter=2, constraints=[SpeedLimit(0.01)]))
+
+
+@pytest.mark.parametrize("gate", [None, "auto"])
+def test_tour_visits_take_the_first_most_probable_step_of_each_window(
+    gate: object, tours: dict, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from pmht_opt import smoothed
+    from pmht_opt.constraints.base import ConstraintContext
+    from pmht_opt.estep import estep
+
+    sc, tour = tours["B"]
+    platform, windows = np.empty(sc.n_locales, dtype=int), sub_batches(sc, tour.routes)
+    for m, route in enumerate(tour.routes):
+        platform[route] = m
+    rng = np.random.default_rng(3)
+    paths = rng.uniform(0.0, 10.0, (sc.n_platforms, sc.horizon, 2))
+    es = estep(sc.locales, paths, None, None, 0.05, gate=gate)
+    visits = smoothed.TourVisits(platform, windows, radius=0.1)
+    # Blocks of a few locales, so that the block boundaries are crossed.
+    monkeypatch.setattr(smoothed, "VISIT_BLOCK", 3 * sc.horizon * sc.n_platforms)
+    _, times = visits.visits(ConstraintContext(scenario=sc, states=np.zeros(0), estep=es))
+    for n, (m, (lo, hi)) in enumerate(zip(platform, windows, strict=True)):
+        assert times[n] == lo + int(np.argmax(es.locale_weights(n)[lo - 1 : hi, m]))
