@@ -146,7 +146,16 @@ def _candidates(inputs: EStepInputs, margin: float) -> Candidates | None:
     n_plats = np.isfinite(log_k).sum(axis=1) if log_k is not None else np.full(N, M)
     support = float(np.sum(n_times * n_plats))
     tree = _TreeCandidates(inputs, margin)
-    estimate = tree.estimate()
+    if N <= 2 * _GATE_SAMPLE and tree.ok:
+        # Few locales: the estimate would query every one of them, as the candidates do. Query once,
+        # stopping past the budget or the support (the same choice as with the estimate, which is then
+        # exact).
+        found = tree.candidates(min(budget, support - 0.5))
+        if found is not None:
+            return found
+        estimate = math.inf
+    else:
+        estimate = tree.estimate()
     if min(support, estimate) > budget:
         return None
     if support <= estimate:
@@ -271,8 +280,8 @@ class _TreeCandidates:
         return count * N / sample.size
 
     def candidates(self, budget: float) -> Candidates | None:
-        """Every triple within its pair's radius, as :func:`_support_candidates` returns them, or
-        ``None`` past ``budget``."""
+        """Every triple within its pair's radius, as :func:`_support_candidates` returns them (empty
+        arrays when no pair is queried), or ``None`` past ``budget``."""
         rows_parts: list[np.ndarray] = []
         t_parts: list[np.ndarray] = []
         m_parts: list[np.ndarray] = []
@@ -292,8 +301,9 @@ class _TreeCandidates:
             m_parts.append(np.full(ts.size, m, dtype=np.intp))
             count_parts.append(counts[counts > 0])
             seg_parts.append(q[counts > 0])
-        if not rows_parts:
-            return None
+        if not rows_parts:  # no pair to query: no candidate (the caller then runs the dense E-step)
+            empty = np.zeros(0, dtype=np.intp)
+            return empty, empty, empty, empty, empty
         return (
             np.concatenate(rows_parts),
             np.concatenate(t_parts),

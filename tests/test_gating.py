@@ -173,3 +173,43 @@ def test_smoothed_plan_gated_equals_dense() -> None:
     assert gated.history.estep_gated.all()
     np.testing.assert_allclose(gated.positions, dense.positions, atol=1e-5)
     np.testing.assert_array_equal(gated.visit_time, dense.visit_time)
+
+
+@pytest.mark.parametrize("prior", ["uniform", "dirichlet", "windows"])
+@pytest.mark.parametrize("r", [0.002, 0.05, 1.0])
+def test_few_locales_choose_candidates_as_an_exact_estimate_would(prior: str, r: float) -> None:
+    from pmht_opt import gating
+    from pmht_opt.likelihood import EStepInputs
+
+    z, pos, lt, lk, _ = _case(4, prior, r)
+    z, lt, lk = z[:100], None if lt is None else lt[:100], None if lk is None else lk[:100]
+    N, (M, T, _) = z.shape[0], pos.shape
+    assert N <= 2 * gating._GATE_SAMPLE  # the branch that queries every locale once
+    inputs = EStepInputs(z, pos, lt, lk, r)
+    margin = gate_margin("auto", T, M)
+    assert margin is not None
+    got = gating._candidates(inputs, margin)
+    # The rule with the exact number of tree candidates: none past the budget, else the smaller set.
+    budget = gating.GATE_MAX_FRACTION * N * T * M
+    n_times = np.isfinite(lt).sum(axis=1) if lt is not None else np.full(N, T)
+    n_plats = np.isfinite(lk).sum(axis=1) if lk is not None else np.full(N, M)
+    support = float(np.sum(n_times * n_plats))
+    tree_all = gating._TreeCandidates(inputs, margin).candidates(np.inf)
+    assert tree_all is not None
+    exact = tree_all[0].size
+    lo = np.minimum(z.min(axis=0), pos.min(axis=(0, 1)))
+    area = float(np.prod(np.maximum(z.max(axis=0), pos.max(axis=(0, 1))) - lo))
+    if lt is None and np.pi * 2.0 * r * margin > gating.GATE_MAX_FRACTION * area:
+        want = None
+    elif min(support, exact) > budget:
+        want = None
+    elif support <= exact:
+        want = gating._support_candidates(lt, lk, N, T, M)
+    else:
+        want = tree_all
+    if want is None:
+        assert got is None
+    else:
+        assert got is not None
+        for a, b in zip(got, want, strict=True):
+            np.testing.assert_array_equal(a, b)
