@@ -43,7 +43,7 @@ from solvers.problem import (
     cone_violation,
 )
 from solvers.retry import NO_RETRY, RetryChain, retry_failed
-from solvers.session import QPSession, Update
+from solvers.session import QPSession, Update, WorkBudget
 
 
 @dataclass(frozen=True)
@@ -148,6 +148,7 @@ __all__ = [
     "UnsupportedProblemError",
     "Update",
     "UpdateError",
+    "WorkBudget",
     "Zero",
     "available_solvers",
     "cone_violation",

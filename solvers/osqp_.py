@@ -11,7 +11,8 @@ retry that only raises the iteration limit or changes tolerances continues from 
 numbers: iterations times the problem's size (stored entries of ``P`` and ``A`` plus rows and
 columns, roughly proportional to the cost of an iteration), summed over the solves since the last
 update, however often the solve is resumed. Unlike OSQP's ``time_limit`` it gives the same answer on
-any machine and under any load.
+any machine and under any load. A :class:`~solvers.session.WorkBudget` set as a session's ``budget``
+bounds the work of several sessions together in the same unit.
 """
 
 from __future__ import annotations
@@ -93,10 +94,13 @@ class OSQPSession(QPSession):
         return int(prob.P.nnz + prob.A.nnz + prob.n + prob.m)
 
     def _iteration_room(self) -> int | None:
-        """Iterations left under ``work_limit`` (``None``: no limit)."""
-        if self._work_limit is None:
-            return None
-        return max(int(self._work_limit // self.size) - self._spent, 0)
+        """Iterations left under ``work_limit`` and the shared :attr:`budget` (``None``: no limit)."""
+        rooms = []
+        if self._work_limit is not None:
+            rooms.append(max(int(self._work_limit // self.size) - self._spent, 0))
+        if self.budget is not None:
+            rooms.append(self.budget.room(self.size))
+        return min(rooms) if rooms else None
 
     def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
         prob = self.problem
@@ -172,7 +176,7 @@ class OSQPSession(QPSession):
                     status=Status.MAX_ITER,
                     backend=self.name,
                     raw_status="work limit reached",
-                    info={"work_limit": self._work_limit},
+                    info={"work_limit": self._work_limit, "budget": self.budget},
                 )
             self._solver.update_settings(max_iter=min(self._max_iter, room))
         t0 = time.perf_counter()
@@ -180,6 +184,8 @@ class OSQPSession(QPSession):
         elapsed = time.perf_counter() - t0
         info = res.info
         self._spent += int(info.iter)
+        if self.budget is not None:
+            self.budget.spend(int(info.iter) * self.size)
         status = _STATUS.get(osqp.SolverStatus(info.status_val), Status.UNKNOWN)
         x = None if res.x is None or not np.all(np.isfinite(res.x)) else np.array(res.x)
         if x is None and status is Status.OPTIMAL:

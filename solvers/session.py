@@ -3,13 +3,47 @@
 from __future__ import annotations
 
 import abc
+import threading
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
-from solvers.exceptions import UpdateError
+from solvers.exceptions import SettingsError, UpdateError
 from solvers.problem import QPProblem, QPSolution, Status
+
+
+class WorkBudget:
+    """Work that several solves share; a backend that counts its work stops when it is spent.
+
+    Work is iterations times the problem's size (stored entries of ``P`` and ``A`` plus rows and
+    columns), roughly proportional to the time a first-order iteration takes, and the same on any
+    machine under any load, unlike a time limit. OSQP counts it; interior-point backends, whose
+    iterations are few and whose cost does not scale this way, ignore it. Shared by threads.
+
+    Parameters
+    ----------
+    limit
+        The work all solves together may spend (positive, finite).
+    """
+
+    def __init__(self, limit: float) -> None:
+        ok = isinstance(limit, int | float) and not isinstance(limit, bool) and 0 < limit < np.inf
+        if not ok:
+            raise SettingsError(f"a work budget must be a positive finite number, got {limit!r}.")
+        self.limit = float(limit)
+        self.spent = 0.0
+        self._lock = threading.Lock()
+
+    def room(self, size: int) -> int:
+        """Iterations left for a problem of ``size``."""
+        with self._lock:
+            return max(int((self.limit - self.spent) // max(size, 1)), 0)
+
+    def spend(self, work: float) -> None:
+        """Record ``work`` as spent."""
+        with self._lock:
+            self.spent += float(work)
 
 
 @dataclass(frozen=True)
@@ -49,6 +83,8 @@ class QPSession(abc.ABC):
     def __init__(self, problem: QPProblem, **settings: Any) -> None:
         self.problem = problem
         self.settings = dict(settings)
+        #: Work shared with other sessions (:class:`WorkBudget`); ``None``: this session's own limits only.
+        self.budget: WorkBudget | None = None
         self._setup()
 
     @abc.abstractmethod

@@ -113,6 +113,22 @@ def test_osqp_constrained_solves_stop_at_their_work_limit(scenario_a: po.Scenari
     assert sum(len(block._qps) for block in mstep.blocks) == 1
 
 
+def test_the_platforms_of_a_constrained_osqp_mstep_share_its_work_budget(scenario_a: po.Scenario) -> None:
+    data = random_weights(scenario_a, np.random.default_rng(5), 0.5)
+    free = po.solve_mstep(scenario_a, data.W, data.WZ, data.r)
+    vmax = 0.5 * float(np.max(np.hypot(free[:, 1:, 1], free[:, 1:, 4])))
+    limit = [po.SpeedLimit(vmax)]
+    # Without a budget it solves; a budget of a few iterations fails the M-step and names the platform.
+    solved = po.solve_mstep(
+        scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": None}
+    )
+    assert np.max(np.hypot(solved[:, 1:, 1], solved[:, 1:, 4])) <= vmax * (1 + 1e-3)
+    with pytest.raises(po.SolverError, match=r"\(platform \d\).*can all be met"):
+        po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": 1e6})
+    with pytest.raises(po.ConfigError, match="mstep_work_limit"):
+        po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": -1})
+
+
 def test_inaccurate_solutions_are_refused_unless_accepted(scenario_a: po.Scenario) -> None:
     data = random_weights(scenario_a, np.random.default_rng(0), 0.3)
     settings = {"max_iter": 4, "tol_gap_abs": 1e-14, "tol_gap_rel": 1e-14, "tol_feas": 1e-14}

@@ -315,3 +315,27 @@ def test_osqp_work_limit_bounds_every_solve_of_the_same_numbers() -> None:
 def test_osqp_work_limit_must_be_a_positive_finite_number(limit: object) -> None:
     with pytest.raises(solvers.SettingsError, match="work_limit"):
         solvers.open_session(box_smoothing_problem(), "osqp", work_limit=limit)
+
+
+def test_a_work_budget_is_shared_by_the_sessions_that_hold_it() -> None:
+    prob = box_smoothing_problem()
+    first = solvers.open_session(prob, "osqp", polishing=False, **EXACT_ITERATIONS)
+    budget = solvers.WorkBudget(100 * first.size)
+    first.budget = budget
+    assert first.solve().iterations == 100 and budget.spent == 100 * first.size
+    # A second session on the same budget finds it spent; one without a budget is not limited.
+    second = solvers.open_session(prob, "osqp", polishing=False, **EXACT_ITERATIONS)
+    second.budget = budget
+    assert second.solve().raw_status == "work limit reached"
+    second.budget = None
+    assert second.solve().ok
+    # Interior-point sessions ignore it.
+    clarabel = solvers.open_session(prob, "clarabel")
+    clarabel.budget = budget
+    assert clarabel.solve().ok
+
+
+@pytest.mark.parametrize("limit", [0, -1.0, float("nan"), float("inf"), True])
+def test_a_work_budget_must_be_a_positive_finite_number(limit: object) -> None:
+    with pytest.raises(solvers.SettingsError, match="work budget"):
+        solvers.WorkBudget(limit)  # type: ignore[arg-type]

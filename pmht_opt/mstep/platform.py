@@ -125,14 +125,15 @@ class PlatformQP:
         r: float,
         rows: PlatformRows | None = None,
         probe: Callable[[solvers.QPSolution], None] | None = None,
+        budget: solvers.WorkBudget | None = None,
     ) -> tuple[solvers.QPSolution, np.ndarray | None, np.ndarray | None]:
         """Solve for weights ``W (T,)``, weighted locale sums ``WZ (T, 2)`` and constraint rows
-        (``probe``: see :meth:`HorizonQP.solve`)."""
+        (``probe``, ``budget``: see :meth:`HorizonQP.solve`)."""
         T = self.horizon
         constrained = rows is not None and bool(rows.items)
         n = T if constrained else max(weighted_horizon(W), 1)
         qp = self.qp(n)
-        sol = qp.solve(W[:n], WZ[:n], r, rows, probe)
+        sol = qp.solve(W[:n], WZ[:n], r, rows, probe, budget)
         if sol.x is None:
             return sol, None, None
         head = qp.states(sol.x)
@@ -266,12 +267,14 @@ class HorizonQP:
         r: float,
         rows: PlatformRows | None = None,
         probe: Callable[[solvers.QPSolution], None] | None = None,
+        budget: solvers.WorkBudget | None = None,
     ) -> solvers.QPSolution:
         """Solve for weights ``W (T,)``, weighted locale sums ``WZ (T, 2)`` and constraint rows.
 
         ``probe`` is called with a failed constrained solve before any retry; it may raise (the
         M-step asks whether the rows are infeasible, which a cheap feasibility problem settles far
-        sooner than a chain of retries of a solver that cannot succeed).
+        sooner than a chain of retries of a solver that cannot succeed). ``budget`` is the work this
+        solve and its retries share with the M-step's other platforms (:class:`solvers.WorkBudget`).
 
         A session's scaling (both backends equilibrate at setup) is kept while ``r`` stays within a
         factor :data:`RESCALE` of the ``r`` it was set up with; past that, and whenever the rows'
@@ -283,6 +286,7 @@ class HorizonQP:
         if self.session is not None and key == self._rows_key and not stale:  # only the weights moved
             q = self._cost(W, WZ, r)
             self.session.update(P_data=self.diag[self.stored], q=q)
+            self.session.budget = budget
             return self._retry(self.session.solve(), q, fresh=False, probe=probe)
         self._rows_key = key
         self.extra = None
@@ -304,6 +308,7 @@ class HorizonQP:
             self.session.update(P_data=self.diag[self.stored], q=q)
         else:
             self.session.update(P_data=self.diag[self.stored], q=q, A_data=A.data, b=b)
+        self.session.budget = budget
         return self._retry(self.session.solve(), q, fresh=fresh, probe=probe)
 
     def _open(self, problem: solvers.QPProblem, options: dict[str, Any]) -> solvers.QPSession:
@@ -335,9 +340,11 @@ class HorizonQP:
         n_slack = 0 if self.extra is None else self.extra.n_slack
         problem = solvers.QPProblem(P=self._P(n_slack), q=q, A=A, b=b, cones=cones)
         assert self.session is not None
+        budget = self.session.budget
         last: list[solvers.QPSession] = [self.session]
         if not fresh:
             last[:] = [self._open(problem, self.options)]
+            last[0].budget = budget
             again = last[0].solve()
             if again.ok:
                 self.problem, self.session = problem, last[0]
@@ -355,6 +362,7 @@ class HorizonQP:
             if resumed is not None:
                 return resumed
             last[:] = [self.session_class(problem, **settings)]
+            last[0].budget = budget
             return last[0].solve()
 
         out, used = solvers.retry_failed(sol, self.options, chain, attempt)

@@ -11,7 +11,7 @@ import numpy as np
 import solvers
 from pmht_opt.constraints.base import Constraint
 from pmht_opt.constraints.blocks import Block
-from pmht_opt.exceptions import InfeasibleError, PmhtOptError, SolverError, UnknownSolverError
+from pmht_opt.exceptions import ConfigError, InfeasibleError, PmhtOptError, SolverError, UnknownSolverError
 from pmht_opt.mstep.banded import axis_states
 from pmht_opt.mstep.base import MStep, MStepData, MStepOutput, check_cvxpy_solver
 from pmht_opt.mstep.diagnosis import diagnose
@@ -21,6 +21,7 @@ from pmht_opt.mstep.tuning import (
     CONSTRAINED_DEFAULTS,
     CONSTRAINED_RETRIES,
     DEFAULTS,
+    MSTEP_WORK,
     RETRIES,
     cvxpy_defaults,
     cvxpy_retries,
@@ -56,6 +57,17 @@ def check_solution(sol: solvers.QPSolution, accept_inaccurate: bool, platform: i
     )
 
 
+def _work_limit(value: object) -> float | None:
+    """``solver_settings["mstep_work_limit"]`` checked: ``None`` or a positive finite number."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value < np.inf:
+        raise ConfigError(
+            f"solver_settings: mstep_work_limit must be None or a positive number, got {value!r}."
+        )
+    return float(value)
+
+
 def _screen_tol(block: Block) -> np.ndarray | float:
     """The screening tolerance of each unit of ``block`` (:data:`SCREEN_TOL`)."""
     if block.kind != "soc":
@@ -87,6 +99,8 @@ class QPMStep(MStep):
     ) -> None:
         super().__init__(scenario, settings, accept_inaccurate, constraints)
         self.solver = solver
+        #: Work budget of one M-step with constraint rows (``None``: none), :data:`MSTEP_WORK`.
+        self.mstep_work = _work_limit(self.settings.pop("mstep_work_limit", MSTEP_WORK.get(solver)))
         #: Whether platforms without constraint rows take the exact smoother's answer (solver "auto").
         self.exact_unconstrained = exact_unconstrained
         try:
@@ -146,15 +160,18 @@ class QPMStep(MStep):
         return [int(m) for m in np.flatnonzero(~exact_ok)]
 
     def _probe(
-        self, m: int, data: MStepData, rows: PlatformRows | None
+        self, m: int, data: MStepData, rows: PlatformRows | None, verdicts: dict[int, PmhtOptError]
     ) -> Callable[[solvers.QPSolution], None] | None:
         """What platform ``m``'s QP asks after a failed solve, before any retry: an
-        :class:`InfeasibleError` if its hard rows cannot all be met (``None`` without hard rows)."""
+        :class:`InfeasibleError` if its hard rows cannot all be met (``None`` without hard rows).
+        The verdict is kept in ``verdicts[m]``, so that a platform whose retries fail too is not
+        diagnosed twice."""
         if rows is None or not any(not i.soft for i in rows.items):
             return None
 
         def check(sol: solvers.QPSolution) -> None:
             err = self._diagnose(m, data, rows, sol)
+            verdicts[m] = err
             if isinstance(err, InfeasibleError):
                 raise err
 
@@ -166,14 +183,23 @@ class QPMStep(MStep):
         exact_states = self._with_start(axis_states(exact.means[:, 1:]))
         active = self._screen(data, rows, exact_states)
 
+        constrained = any(r.items for r in rows.values())
+        budget = solvers.WorkBudget(self.mstep_work) if constrained and self.mstep_work else None
+        verdicts: dict[int, PmhtOptError] = {}
+
         def one(m: int) -> tuple[solvers.QPSolution, np.ndarray, np.ndarray]:
             # A failed platform fails the M-step at once: the platforms after it are not solved.
             platform_rows = rows.get(m)
             sol, states, u = self.blocks[m].solve(
-                data.W[:, m], data.WZ[:, m], data.r, platform_rows, probe=self._probe(m, data, platform_rows)
+                data.W[:, m],
+                data.WZ[:, m],
+                data.r,
+                platform_rows,
+                probe=self._probe(m, data, platform_rows, verdicts),
+                budget=budget,
             )
             if not sol.usable(self.accept_inaccurate) and platform_rows is not None and platform_rows.items:
-                raise self._diagnose(m, data, platform_rows, sol)
+                raise verdicts.get(m) or self._diagnose(m, data, platform_rows, sol)
             check_solution(sol, self.accept_inaccurate, platform=m)
             assert states is not None and u is not None
             return sol, states, u

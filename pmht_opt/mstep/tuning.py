@@ -13,11 +13,13 @@ Why each value (figures in docs/decisions.md sections 2 and 3):
   feasible constrained M-step of scenario A takes a few hundred): an infeasible one, which ADMM
   rarely certifies, then fails within seconds, and the infeasibility diagnosis names it before any
   retry; a feasible but hard one continues from its iterate with room for 50000 more iterations
-  (guaranteed visits take 5000-43000 on A, B, C). All of it within a ``work_limit`` of 2e9
-  (iterations times the QP's size, :mod:`solvers.osqp_`): about 5 s of ADMM on this project's
-  2-core reference machine, so that a platform OSQP cannot solve fails in seconds; guaranteed visits
-  alone (a size of about 36k on A) keep their 50000 iterations, a speed limit on every step with
-  visits (about 163k) gets 12000.
+  (guaranteed visits take 5000-43000 on A, B, C). All the platforms of one constrained M-step share a
+  work budget (:data:`MSTEP_WORK`).
+* OSQP's work budget per constrained M-step: 2e9 (iterations times the QP's size,
+  :class:`solvers.WorkBudget`), about 6 s of ADMM on this project's 2-core reference machine, so
+  that an M-step OSQP cannot solve fails within seconds whatever the number of platforms (one
+  platform with visits alone, a size of about 36k on A, may take 55000 iterations; with a speed
+  limit on every step, about 163k, 12000). Deterministic, unlike a time limit.
 * Clarabel: iterative refinement of the KKT solves roughly doubles the time of a constrained M-step and
   is not needed on well-scaled ones, so it is off by default and the first retry. The last retries of
   a constrained M-step turn equilibration off (A seed 68 with ``VisitAll(0.1)``: "almost solved" under
@@ -73,7 +75,6 @@ CONSTRAINED_DEFAULTS: dict[str, dict[str, Any]] = {
         "check_dualgap": False,
         "check_termination": 25,
         "max_iter": 8000,
-        "work_limit": 2e9,
     },
     "clarabel": {"iterative_refinement_enable": False},
 }
@@ -94,7 +95,7 @@ RETRIES: dict[str, RetryChain] = {
 #: Settings tried in turn after a failed solve with constraint rows (backends not listed: :data:`RETRIES`).
 #: OSQP's first constrained attempt stops at 8000 iterations; then, once the infeasibility diagnosis
 #: has found the rows feasible, it continues from its iterate with room for 50000 more, within the
-#: session's ``work_limit``.
+#: M-step's work budget (:data:`MSTEP_WORK`).
 CONSTRAINED_RETRIES: dict[str, RetryChain] = {
     "clarabel": RetryChain(
         (
@@ -106,6 +107,11 @@ CONSTRAINED_RETRIES: dict[str, RetryChain] = {
     ),
     "osqp": RetryChain(({"max_iter": 50_000},)),
 }
+
+#: Work budget (:class:`solvers.WorkBudget`) shared by the platform solves of one M-step with constraint
+#: rows, per backend (backends not listed: none). ``solver_settings={"mstep_work_limit": ...}``
+#: overrides it (``None``: no budget).
+MSTEP_WORK: dict[str, float] = {"osqp": 2e9}
 
 #: Options of Clarabel inside cvxpy on unconstrained M-steps: the clarabel backend's tolerances (cvxpy
 #: passes them through). Constrained M-steps keep the cvxpy solver's own defaults.
