@@ -413,6 +413,28 @@ def test_span_pattern_keeps_one_sparsity_for_moving_rows() -> None:
     np.testing.assert_array_equal(a.indptr, b.indptr)
 
 
+def test_span_pattern_stores_every_touched_component_over_each_units_span() -> None:
+    from pmht_opt.constraints.blocks import disc_block, with_span_pattern
+
+    rng = np.random.default_rng(2)
+    T, k = 40, 7
+    times = rng.integers(5, 35, k)
+    blk = disc_block(1, T, times, (0, 3), rng.uniform(0, 5, (k, 2)), np.full(k, 0.3))
+    blk.span = np.stack([times - rng.integers(0, 5, k), times + rng.integers(0, 5, k)], axis=1)
+    got = with_span_pattern(blk)
+    # By definition: each row of unit u stores px and py (the components the disc touches) at every
+    # step of u's span, plus its own entries with their values.
+    want = set()
+    for u, (lo, hi) in enumerate(blk.span):
+        for row in range(3 * u, 3 * u + 3):
+            want |= {(row, 6 * (t - 1) + comp) for t in range(lo, hi + 1) for comp in (0, 3)}
+    coo = got.tocoo()
+    assert set(zip(coo.row.tolist(), coo.col.tolist(), strict=True)) == want | set(
+        zip(*blk.G.nonzero(), strict=True)
+    )
+    np.testing.assert_array_equal(got.toarray(), blk.G.toarray())
+
+
 def test_soft_inequalities_cost_nothing_when_met() -> None:
     # A soft keep-out disc far from every path is inactive: the plan equals the unconstrained one.
     # (An unbounded slack would reward keeping away from it instead.)

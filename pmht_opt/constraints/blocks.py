@@ -196,18 +196,19 @@ def with_span_pattern(block: Block) -> sp.csr_matrix:
     if block.span is None:
         return block.G
     dim = block.dim
-    unit_of_row = G.row // dim
-    rows, cols = [], []
-    for u in range(block.units):
-        comps = np.unique(G.col[unit_of_row == u] % STATE_DIM)
-        lo, hi = block.span[u]
-        steps = np.arange(lo, hi + 1)
-        for k in range(dim):
-            for comp in comps:
-                rows.append(np.full(steps.size, u * dim + k))
-                cols.append(STATE_DIM * (steps - 1) + comp)
-    r = np.concatenate(rows) if rows else np.zeros(0, dtype=int)
-    c = np.concatenate(cols) if cols else np.zeros(0, dtype=int)
+    # The (unit, state component) pairs the unit's rows touch, and for each its span of steps.
+    touched = np.zeros((block.units, STATE_DIM), dtype=bool)
+    touched[G.row // dim, G.col % STATE_DIM] = True
+    unit, comp = np.nonzero(touched)
+    span = np.asarray(block.span, dtype=int)
+    lo = span[unit, 0]
+    lengths = span[unit, 1] - lo + 1
+    pair = np.repeat(np.arange(unit.size), lengths)
+    steps = lo[pair] + np.arange(pair.size) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    cols_one = STATE_DIM * (steps - 1) + comp[pair]
+    # Every row of the unit, at each of those columns.
+    r = (dim * unit[pair][None, :] + np.arange(dim)[:, None]).ravel()
+    c = np.tile(cols_one, dim)
     both = sp.csr_matrix(
         (
             np.concatenate([G.data, np.zeros(r.size)]),
