@@ -43,7 +43,7 @@ from solvers.problem import (
     cone_violation,
 )
 from solvers.retry import NO_RETRY, RetryChain, retry_failed
-from solvers.session import QPSession, Update, WorkBudget
+from solvers.session import QPSession, Update, WorkBudget, work_amount
 
 
 @dataclass(frozen=True)
@@ -158,4 +158,5 @@ __all__ = [
     "retry_failed",
     "solve_qp",
     "unknown_solver_message",
+    "work_amount",
 ]

@@ -25,7 +25,7 @@ import osqp
 
 from solvers.exceptions import ProblemError, SettingsError, UnsupportedProblemError, UpdateError
 from solvers.problem import QPSolution, Status
-from solvers.session import QPSession, Update
+from solvers.session import QPSession, Update, work_amount
 
 DEFAULTS: dict[str, Any] = {
     "verbose": False,
@@ -119,10 +119,7 @@ class OSQPSession(QPSession):
             )
         opts = {**DEFAULTS, **self.settings}
         limit = opts.pop("work_limit", None)
-        valid = isinstance(limit, int | float) and not isinstance(limit, bool) and 0 < limit < np.inf
-        if limit is not None and not valid:
-            raise SettingsError(f"work_limit must be a positive finite number, got {limit!r}.")
-        self._work_limit: float | None = None if limit is None else float(limit)
+        self._work_limit = None if limit is None else work_amount("work_limit", limit)
         self._max_iter = int(opts["max_iter"])
         #: Iterations spent on the current numbers (reset by every update).
         self._spent = 0

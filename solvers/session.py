@@ -13,6 +13,14 @@ from solvers.exceptions import SettingsError, UpdateError
 from solvers.problem import QPProblem, QPSolution, Status
 
 
+def work_amount(what: str, value: object) -> float:
+    """``value`` as an amount of work (:class:`WorkBudget`): a positive finite number, else
+    :class:`SettingsError` naming ``what``."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value < np.inf:
+        raise SettingsError(f"{what} must be a positive finite number, got {value!r}.")
+    return float(value)
+
+
 class WorkBudget:
     """Work that several solves share; a backend that counts its work stops when it is spent.
 
@@ -28,10 +36,7 @@ class WorkBudget:
     """
 
     def __init__(self, limit: float) -> None:
-        ok = isinstance(limit, int | float) and not isinstance(limit, bool) and 0 < limit < np.inf
-        if not ok:
-            raise SettingsError(f"a work budget must be a positive finite number, got {limit!r}.")
-        self.limit = float(limit)
+        self.limit = work_amount("a work budget", limit)
         self.spent = 0.0
         self._lock = threading.Lock()
 

@@ -61,11 +61,10 @@ def _work_limit(value: object) -> float | None:
     """``solver_settings["mstep_work_limit"]`` checked: ``None`` or a positive finite number."""
     if value is None:
         return None
-    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value < np.inf:
-        raise ConfigError(
-            f"solver_settings: mstep_work_limit must be None or a positive number, got {value!r}."
-        )
-    return float(value)
+    try:
+        return solvers.work_amount("mstep_work_limit", value)
+    except solvers.SettingsError as err:
+        raise ConfigError(f"solver_settings: {err} None lifts the budget.") from err
 
 
 def _screen_tol(block: Block) -> np.ndarray | float:
