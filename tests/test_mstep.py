@@ -123,7 +123,7 @@ def test_the_platforms_of_a_constrained_osqp_mstep_share_its_work_budget(scenari
         scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": None}
     )
     assert np.max(np.hypot(solved[:, 1:, 1], solved[:, 1:, 4])) <= vmax * (1 + 1e-3)
-    with pytest.raises(po.SolverError, match=r"\(platform \d\).*can all be met"):
+    with pytest.raises(po.SolverError, match=r"\(platform \d\).*can all be met.*'mstep_work_limit': None"):
         po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": 1e6})
     with pytest.raises(po.ConfigError, match="mstep_work_limit"):
         po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": -1})

@@ -103,10 +103,13 @@ def diagnose(
             culprits.setdefault(owner.constraint, []).append((owner.time, owner.label, float(value)))
     if not culprits:
         others = "'cvxpy' or 'osqp'" if sol.backend == "clarabel" else "'clarabel'"
+        more = ""
+        if sol.backend == "osqp":  # a first-order solver may only need more iterations
+            more = ", or more work for OSQP (solver_settings={'mstep_work_limit': None})"
         return SolverError(
             f"{sol.backend}: the M-step solve failed (platform {platform}) with status {sol.raw_status!r}; "
             "its constraints can all be met (a feasibility solve needs no slack), so the failure is the "
-            f"solver's: try solver={others}, or soft=True on the tightest constraint.",
+            f"solver's: try solver={others}{more}, or soft=True on the tightest constraint.",
             sol.backend,
             sol.raw_status,
         )
