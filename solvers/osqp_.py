@@ -25,7 +25,7 @@ import osqp
 
 from solvers.exceptions import ProblemError, SettingsError, UnsupportedProblemError, UpdateError
 from solvers.problem import QPSolution, Status
-from solvers.session import QPSession, Update, work_amount
+from solvers.session import QPSession, Update, WorkBudget, work_amount
 
 DEFAULTS: dict[str, Any] = {
     "verbose": False,
@@ -76,8 +76,15 @@ def _setup_error(err: Exception) -> Exception:
 
 #: Settings OSQP changes in place between solves, so that a solve can continue from its iterate.
 RESUMABLE = frozenset(
-    {"max_iter", "eps_abs", "eps_rel", "polishing", "polish_refine_iter", "check_termination"}
-    | {"check_dualgap"}
+    (
+        "max_iter",
+        "eps_abs",
+        "eps_rel",
+        "polishing",
+        "polish_refine_iter",
+        "check_termination",
+        "check_dualgap",
+    )
 )
 
 
@@ -95,11 +102,7 @@ class OSQPSession(QPSession):
 
     def _iteration_room(self) -> int | None:
         """Iterations left under ``work_limit`` and the shared :attr:`budget` (``None``: no limit)."""
-        rooms = []
-        if self._work_limit is not None:
-            rooms.append(max(int(self._work_limit // self.size) - self._spent, 0))
-        if self.budget is not None:
-            rooms.append(self.budget.room(self.size))
+        rooms = [b.room(self.size) for b in (self._own, self.budget) if b is not None]
         return min(rooms) if rooms else None
 
     def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -121,8 +124,8 @@ class OSQPSession(QPSession):
         limit = opts.pop("work_limit", None)
         self._work_limit = None if limit is None else work_amount("work_limit", limit)
         self._max_iter = int(opts["max_iter"])
-        #: Iterations spent on the current numbers (reset by every update).
-        self._spent = 0
+        #: This session's own budget on the current numbers (renewed by every update).
+        self._own = None if self._work_limit is None else WorkBudget(self._work_limit)
         self._solver = osqp.OSQP()
         lower, upper = self._bounds()
         prob = self.problem
@@ -143,7 +146,8 @@ class OSQPSession(QPSession):
             kwargs["Px"] = update.P_data
         if update.A_data is not None:
             kwargs["Ax"] = update.A_data
-        self._spent = 0
+        if self._work_limit is not None:
+            self._own = WorkBudget(self._work_limit)
         if kwargs:
             try:
                 self._solver.update(**kwargs)
@@ -173,16 +177,16 @@ class OSQPSession(QPSession):
                     status=Status.MAX_ITER,
                     backend=self.name,
                     raw_status="work limit reached",
-                    info={"work_limit": self._work_limit, "budget": self.budget},
+                    info={"work_limit": self._work_limit},
                 )
             self._solver.update_settings(max_iter=min(self._max_iter, room))
         t0 = time.perf_counter()
         res = self._solver.solve(raise_error=False)
         elapsed = time.perf_counter() - t0
         info = res.info
-        self._spent += int(info.iter)
-        if self.budget is not None:
-            self.budget.spend(int(info.iter) * self.size)
+        for budget in (self._own, self.budget):
+            if budget is not None:
+                budget.spend(int(info.iter) * self.size)
         status = _STATUS.get(osqp.SolverStatus(info.status_val), Status.UNKNOWN)
         x = None if res.x is None or not np.all(np.isfinite(res.x)) else np.array(res.x)
         if x is None and status is Status.OPTIMAL:
