@@ -284,7 +284,6 @@ class Options:
     horizon: int = 500
     parts: tuple[str, ...] = PARTS
     cvxpy_solvers: tuple[str, ...] | None = None
-    tables_only: bool = False
 
     def __post_init__(self) -> None:
         positive_int("--repeats", self.repeats)
@@ -315,11 +314,6 @@ class Options:
         p.add_argument(
             "--cvxpy-solvers", nargs="+", default=None, help="cvxpy solvers (default: all installed)"
         )
-        p.add_argument(
-            "--tables-only",
-            action="store_true",
-            help="only rewrite solvers.md, solvers.json and solvers.png from the raw tables in --out",
-        )
 
     @classmethod
     def from_args(cls, ns: argparse.Namespace) -> Options:
@@ -342,7 +336,6 @@ class Options:
             horizon=pick(ns.horizon, 500, 80),
             parts=tuple(ns.parts),
             cvxpy_solvers=None if names is None else tuple(names),
-            tables_only=bool(ns.tables_only),
         )
 
 
@@ -365,7 +358,7 @@ def main(run_options: RunOptions, options: Options) -> list[Path]:
             progress=not run_options.quiet,
             resume=not run_options.fresh,
             command="pmht-opt study solvers" + (" --quick" if options.quick else ""),
-            tables_only=options.tables_only,
+            tables_only=run_options.tables_only,
         )
     return written
 

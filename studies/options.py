@@ -1,4 +1,5 @@
-"""Options every study takes (output directory, workers, Dask, resume, verify), checked once, and the
+"""Options every study takes (output directory, workers, Dask, resume, verify, tables only), checked once,
+and the
 one way a study of trials runs into its directory.
 
 Each study adds a frozen dataclass of its own options; both kinds validate themselves on construction
@@ -23,7 +24,7 @@ from typing import Any, Self
 
 from pmht_opt.exceptions import ConfigError
 from studies.executors import check_dask_address, dask_executor, local_executor
-from studies.trials import Row, TrialTable, run_trials
+from studies.trials import Row, TrialTable, run_trials, stored_rows
 
 
 def positive_int(option: str, value: object, *, minimum: int = 1) -> int:
@@ -218,6 +219,9 @@ class RunOptions:
         No progress bar and no printed tables.
     verify
         Instead of running the study, run this many stored trials again and compare them with their rows.
+    tables_only
+        Run no trial: write the summaries, tables and figures from the rows already stored (the study's
+        trials that have none are left out, and said so).
     """
 
     out: Path
@@ -226,6 +230,7 @@ class RunOptions:
     fresh: bool = False
     quiet: bool = False
     verify: int = 0
+    tables_only: bool = False
 
     def __post_init__(self) -> None:
         positive_int("--workers", self.workers)
@@ -234,6 +239,10 @@ class RunOptions:
             object.__setattr__(self, "dask_scheduler", check_dask_address(self.dask_scheduler))
         if self.verify and self.fresh:
             raise ConfigError("--verify compares with the stored results; it cannot be used with --fresh.")
+        if self.tables_only and (self.fresh or self.verify):
+            raise ConfigError(
+                "--tables-only reads the stored results; it cannot be used with --fresh or --verify."
+            )
 
     @staticmethod
     def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -254,6 +263,11 @@ class RunOptions:
             default=0,
             metavar="K",
             help="run K stored trials again and compare them with their rows instead of running the study",
+        )
+        p.add_argument(
+            "--tables-only",
+            action="store_true",
+            help="run no trial: rewrite the summaries, tables and figures from the results in --out",
         )
 
     @classmethod
@@ -282,6 +296,14 @@ class RunOptions:
         """Run ``trials`` of ``table`` into the output directory as these options say (executor,
         progress bar, resume or afresh); the directory and the rows, in the order of ``trials``."""
         out = self.prepare()
+        if self.tables_only:
+            rows, missing = stored_rows(table, trials, out)
+            if missing and not self.quiet:
+                print(
+                    f"--tables-only: {missing} of {missing + len(rows)} trials have no row in "
+                    f"{table.path(out)}; they are left out."
+                )
+            return out, rows
         with self.executor() as ex:
             rows = run_trials(
                 table,

@@ -66,7 +66,7 @@ from studies.scaling_study.summary import (
     summarise_sweeps,
     target,
 )
-from studies.trials import local_executor, run_trials
+from studies.trials import local_executor, run_trials, stored_rows
 
 __all__ = ["TABLE", "Options", "main", "run", "verify_executor"]
 
@@ -83,10 +83,13 @@ class _Trials:
     out_dir: Path
     progress: bool
     resume: bool
+    tables_only: bool = False
 
     def __call__(self, trials: list[dict[str, Any]], label: str, first: bool = False) -> list[dict[str, Any]]:
         """Run ``trials`` under ``label``; only the first batch may start the file afresh (``--fresh``),
-        later ones add to it."""
+        later ones add to it. With ``tables_only``, the stored rows of ``trials`` instead."""
+        if self.tables_only:
+            return stored_rows(TABLE, trials, self.out_dir)[0]
         ex = verify_executor()
         try:
             return run_trials(
@@ -109,9 +112,10 @@ def run(
     seed: int = 0,
     progress: bool = True,
     resume: bool = True,
+    tables_only: bool = False,
 ) -> tuple[dict[str, Any], list[Path]]:
     """Run the study into ``out_dir``; return the summary written to ``scaling.json`` and the paths
-    written."""
+    written. ``tables_only`` runs no plan: the summary comes from the rows already stored."""
     installed = set(available_backends())
     backends = [b for b in backends if b in installed]
     if not backends:
@@ -119,7 +123,7 @@ def run(
     out_dir = Path(out_dir)
     it, reps, head = design.iterations, design.reps, design.headline
     load_start = load_average()
-    measure = _Trials(out_dir, progress, resume)
+    measure = _Trials(out_dir, progress, resume, tables_only)
 
     rows = measure(
         [params("time", head, b, "auto", it, seed, 0) for b in backends], "scaling: backends", True
@@ -239,6 +243,7 @@ def main(run_options: RunOptions, options: Options) -> list[Path]:
         seed=options.seed,
         progress=not run_options.quiet,
         resume=not run_options.fresh,
+        tables_only=run_options.tables_only,
     )
     return written
 

@@ -260,6 +260,24 @@ def run_trials(
         return [_public(store.rows[k]) for k in ids]
 
 
+def stored_rows(
+    table: TrialTable, trials: Sequence[Mapping[str, Any]], out_dir: str | Path
+) -> tuple[list[Row], int]:
+    """The stored rows of ``trials``, in their order, without running any trial or writing anything.
+
+    For rewriting a study's summaries and figures from what its results file holds (``--tables-only``):
+    trials with no valid row are left out. Returns the rows and the number of trials left out;
+    :class:`ConfigError` when there is no results file.
+    """
+    path = table.path(Path(out_dir))
+    if not path.exists():
+        raise ConfigError(f"--tables-only: no results file {path}; run the study first.")
+    stored = load(path, table.schema, table.name).rows
+    ids = list(dict.fromkeys(trial_id(dict(t)) for t in trials))
+    rows = [_public(stored[k]) for k in ids if k in stored]
+    return rows, len(ids) - len(rows)
+
+
 def _public(row: Mapping[str, Any]) -> Row:
     return {k: v for k, v in row.items() if k != "record"}
 

@@ -25,6 +25,13 @@ def test_scaling_study_quick(tmp_path: Path) -> None:
     assert all(a["assignment_equal"] for a in summary["agreement"])
     assert "## Gated against dense" in (tmp_path / "scaling.md").read_text()
     assert cli_main(["study", "scaling", "--quick", "--reps", "0", "--out", str(tmp_path), "--quiet"]) == 2
+    # The summary again from the stored plans, none run: the same summary, the table untouched.
+    stored = (tmp_path / "scaling.jsonl").read_bytes()
+    (tmp_path / "scaling.json").unlink()
+    assert cli_main([*args, "--tables-only"]) == 0
+    again = json.loads((tmp_path / "scaling.json").read_text())
+    assert (tmp_path / "scaling.jsonl").read_bytes() == stored
+    assert again["headline"] == summary["headline"] and again["sweeps"] == summary["sweeps"]
 
 
 def test_one_plan_is_measured_in_process() -> None:

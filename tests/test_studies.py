@@ -76,6 +76,29 @@ def test_anneal_verify_passes_then_fails_on_a_tampered_row(
     assert f"MISMATCH trial {victim['trial']}: column 'coverage'" in out
 
 
+def test_tables_only_rewrites_the_summary_from_stored_rows_and_runs_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    base = ["study", "anneal", "--configs", "plain", "--kinds", "B", "--horizon", "30"]
+    base += ["--out", str(tmp_path)]
+    assert main([*base, "--trials", "2", "--quiet"]) == 0
+    path = tmp_path / "anneal.jsonl"
+    stored = path.read_bytes()
+    (tmp_path / "anneal.md").unlink()
+    capsys.readouterr()
+    # A third trial is asked for: it is not run, and the table says what it left out.
+    assert main([*base, "--trials", "3", "--tables-only"]) == 0
+    out = capsys.readouterr().out
+    assert f"--tables-only: 1 of 3 trials have no row in {path}; they are left out." in out
+    assert path.read_bytes() == stored  # nothing run, nothing appended (not even a run record)
+    assert "| B | plain | 2 |" in (tmp_path / "anneal.md").read_text().replace("  ", " ")
+    assert main([*base, "--tables-only", "--fresh"]) == 2
+    assert "cannot be used with --fresh or --verify" in capsys.readouterr().err
+    empty = tmp_path / "empty"
+    assert main([*base[:-1], str(empty), "--tables-only"]) == 2
+    assert "--tables-only: no results file" in capsys.readouterr().err
+
+
 def test_table1_summary_and_paper_columns() -> None:
     rows = [
         {"kind": "B", "seed": s, "method": "pmht", "distance": d, "cpu": 1.0, "coverage": 0.7, "excursion": e}
