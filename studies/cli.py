@@ -26,7 +26,8 @@ from typing import Any, NamedTuple, NoReturn
 from pmht_opt.exceptions import MissingDependencyError, PmhtOptError
 from studies.executors import local_executor
 from studies.options import RunOptions
-from studies.trials import TrialTable, verify
+from studies.stored import verify
+from studies.trials import TrialTable
 
 
 class Study(NamedTuple):

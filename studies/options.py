@@ -24,7 +24,8 @@ from typing import Any, Self
 
 from pmht_opt.exceptions import ConfigError
 from studies.executors import check_dask_address, dask_executor, local_executor
-from studies.trials import Row, TrialTable, run_trials, stored_rows
+from studies.stored import stored_rows
+from studies.trials import Row, TrialTable, run_trials
 
 
 def positive_int(option: str, value: object, *, minimum: int = 1) -> int:

@@ -66,7 +66,8 @@ from studies.scaling_study.summary import (
     summarise_sweeps,
     target,
 )
-from studies.trials import local_executor, run_trials, stored_rows
+from studies.stored import stored_rows
+from studies.trials import local_executor, run_trials
 
 __all__ = ["TABLE", "Options", "main", "run", "verify_executor"]
 

@@ -44,7 +44,7 @@ from studies.executors import check_dask_address as check_dask_address
 from studies.executors import dask_executor as dask_executor
 from studies.executors import local_executor as local_executor
 from studies.provenance import provenance
-from studies.store import ResultsFile, Row, Schema, load, trial_id
+from studies.store import ResultsFile, Row, Schema, trial_id
 
 TrialFn = Callable[..., Mapping[str, Any]]
 
@@ -257,28 +257,11 @@ def run_trials(
             bar.close()
             if own:
                 ex.shutdown(wait=False, cancel_futures=True)
-        return [_public(store.rows[k]) for k in ids]
+        return [public_row(store.rows[k]) for k in ids]
 
 
-def stored_rows(
-    table: TrialTable, trials: Sequence[Mapping[str, Any]], out_dir: str | Path
-) -> tuple[list[Row], int]:
-    """The stored rows of ``trials``, in their order, without running any trial or writing anything.
-
-    For rewriting a study's summaries and figures from what its results file holds (``--tables-only``):
-    trials with no valid row are left out. Returns the rows and the number of trials left out;
-    :class:`ConfigError` when there is no results file.
-    """
-    path = table.path(Path(out_dir))
-    if not path.exists():
-        raise ConfigError(f"--tables-only: no results file {path}; run the study first.")
-    stored = load(path, table.schema, table.name).rows
-    ids = list(dict.fromkeys(trial_id(dict(t)) for t in trials))
-    rows = [_public(stored[k]) for k in ids if k in stored]
-    return rows, len(ids) - len(rows)
-
-
-def _public(row: Mapping[str, Any]) -> Row:
+def public_row(row: Mapping[str, Any]) -> Row:
+    """A stored row without its record marker: what a study's summary reads."""
     return {k: v for k, v in row.items() if k != "record"}
 
 
@@ -354,69 +337,3 @@ def _run_parallel(
     finally:
         for fut in pending:
             fut.cancel()
-
-
-# ------------------------------------------------------------------------------------------ verify
-
-
-@dataclass(frozen=True)
-class Mismatch:
-    """A recomputed trial that disagrees with its stored row."""
-
-    trial: str
-    column: str
-    stored: Any
-    fresh: Any
-
-    def __str__(self) -> str:
-        return (
-            f"trial {self.trial}: column {self.column!r}: stored {self.stored!r}, recomputed {self.fresh!r}"
-        )
-
-
-def pick_evenly(n: int, k: int) -> list[int]:
-    """``k`` indices spread evenly over ``range(n)`` (first and last included when ``k >= 2``)."""
-    k = min(k, n)
-    if k <= 0:
-        return []
-    if k == 1:
-        return [n // 2]
-    return sorted({round(i * (n - 1) / (k - 1)) for i in range(k)})
-
-
-def verify(
-    table: TrialTable, out_dir: str | Path, k: int, *, executor: cf.Executor | None = None
-) -> tuple[list[Row], list[Mismatch]]:
-    """Run ``k`` stored trials again (evenly spaced in trial-id order) and compare them with their rows.
-
-    Every result column is compared under its :class:`Check` (identity unless the table says otherwise,
-    with its reason); so is the error class of a trial that failed.
-
-    Returns
-    -------
-    (rows, mismatches)
-        The rows that were checked and every disagreement found.
-    """
-    path = table.path(Path(out_dir))
-    if not path.exists():
-        raise ConfigError(f"--verify: no results file {path}.")
-    rows = sorted(load(path, table.schema, table.name).rows.values(), key=lambda r: r["trial"])
-    if not rows:
-        raise ConfigError(f"--verify: {path} holds no valid row.")
-    chosen = [rows[i] for i in pick_evenly(len(rows), k)]
-    ex = executor or InlineExecutor()
-    futures = [ex.submit(call_trial, table.fn, {n: r[n] for n in table.schema.params}) for r in chosen]
-    mismatches: list[Mismatch] = []
-    for row, fut in zip(chosen, futures, strict=True):
-        out = fut.result()
-        if isinstance(out, TrialError) or row["error_class"]:
-            fresh_class = out.error_class if isinstance(out, TrialError) else ""
-            if fresh_class != row["error_class"]:
-                mismatches.append(Mismatch(row["trial"], "error_class", row["error_class"], fresh_class))
-            continue
-        fresh = table.schema.normalise(out)
-        for name in table.schema.values:
-            check = table.checks.get(name, Check())
-            if not check.agrees(row.get(name), fresh.get(name)):
-                mismatches.append(Mismatch(row["trial"], name, row.get(name), fresh.get(name)))
-    return chosen, mismatches

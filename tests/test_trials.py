@@ -24,15 +24,14 @@ import pmht_opt as po
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from studies.pool import WorkerPool
 from studies.store import DamagedRowWarning, ResultsFile, Schema, load, read_rows, trial_id
+from studies.stored import pick_evenly, verify
 from studies.trials import (
     Check,
     InlineExecutor,
     TrialTable,
     check_dask_address,
     local_executor,
-    pick_evenly,
     run_trials,
-    verify,
 )
 
 HERE = Path(__file__).resolve().parent
