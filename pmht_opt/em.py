@@ -69,6 +69,12 @@ class EMCallbacks:
     after_mstep: Callable[[EMRun, MStepOutput], None] | None = None
     after_iteration: Callable[[EMRun, IterationRecord], None] | None = None
 
+    def __post_init__(self) -> None:
+        for name in ("after_estep", "after_mstep", "after_iteration"):
+            fn = getattr(self, name)
+            if fn is not None and not callable(fn):
+                raise ConfigError(f"EMCallbacks.{name}: expected a callable or None, got {fn!r}.")
+
 
 def with_progress(
     callbacks: EMCallbacks | None, callback: Callable[[int, float], Any] | None
@@ -97,10 +103,12 @@ def _initial_log_prior(name: str, prior: Any, shape: tuple[int, int]) -> np.ndar
         raise ScenarioError(f"{name} must have shape {shape}, got {arr.shape}.")
     if not np.all(np.isfinite(arr)) or np.any(arr < 0):
         raise ScenarioError(f"{name} must be finite and non-negative.")
-    sums = arr.sum(axis=1)
-    if np.any(sums <= 0):
-        raise ScenarioError(f"{name} has a locale (row {int(np.argmin(sums))}) with no mass.")
-    return safe_log(arr / sums[:, None])
+    # Each row scaled by its largest entry first, so that huge entries cannot overflow the sum.
+    peak = arr.max(axis=1)
+    if np.any(peak <= 0):
+        raise ScenarioError(f"{name} has a locale (row {int(np.argmin(peak))}) with no mass.")
+    scaled = arr / peak[:, None]
+    return safe_log(scaled / scaled.sum(axis=1)[:, None])
 
 
 def _initial_paths(scenario: Scenario, paths: Any) -> np.ndarray:

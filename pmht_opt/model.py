@@ -13,6 +13,9 @@ from functools import cached_property
 
 import numpy as np
 
+from pmht_opt import validation
+from pmht_opt.exceptions import ScenarioError
+
 #: Indices of the state components.
 PX, VX, AX, PY, VY, AY = range(6)
 #: Indices of the positions within the state.
@@ -30,6 +33,11 @@ class MotionModel:
 
     dt: float = 1.0
     q: float = 1e-8
+
+    def __post_init__(self) -> None:
+        # The ranges a Scenario accepts: the ones the numerics handle (pmht_opt.validation).
+        object.__setattr__(self, "dt", validation.real("dt", self.dt, ScenarioError, *validation.DT_RANGE))
+        object.__setattr__(self, "q", validation.real("q", self.q, ScenarioError, *validation.Q_RANGE))
 
     @cached_property
     def F3(self) -> np.ndarray:

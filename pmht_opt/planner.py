@@ -12,7 +12,6 @@ extra constraints once the penalty ``r`` stays fixed. :func:`plan_pmht` runs the
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -131,7 +130,7 @@ class PMHTConfig:
         for key in ("update_time_prior", "update_platform_prior", "accept_inaccurate"):
             if not isinstance(getattr(self, key), (bool, np.bool_)):
                 raise ConfigError(f"{key}: expected True or False, got {getattr(self, key)!r}.")
-        _check_solver_settings(self.solver_settings)
+        validation.solver_settings("solver_settings", self.solver_settings)
         self.threads = _threads(self.threads)
         self.constraints = _with_implied(self.constraints)
         check_constraints(self.solver, self.constraints)
@@ -155,19 +154,6 @@ class PMHTConfig:
         }
         base.update(changes)
         return cls(**base)
-
-
-def _check_solver_settings(settings: Any) -> None:
-    """Raise :class:`ConfigError` unless ``settings`` is a dict of named settings none of which is NaN
-    (each backend checks the values it knows; NaN is what none of them can use)."""
-    if not isinstance(settings, dict):
-        raise ConfigError(f"solver_settings: expected a dict, got {type(settings).__name__}.")
-    bad = [k for k in settings if not isinstance(k, str)]
-    if bad:
-        raise ConfigError(f"solver_settings: expected setting names (strings), got {bad[0]!r}.")
-    for key, value in settings.items():
-        if isinstance(value, float) and math.isnan(value):
-            raise ConfigError(f"solver_settings: {key} is NaN, which no backend can use.")
 
 
 def _threads(threads: Any) -> int | None:

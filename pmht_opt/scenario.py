@@ -170,6 +170,11 @@ class Scenario:
         for key in ("locales", "starts"):
             if key not in data:
                 raise ScenarioError(f"The scenario has no {key!r} field.")
+        # A null means "the default" only where the default is "none given" (assumed bounds, no name);
+        # a null number or array is a mistake, not a request for the default.
+        null = sorted(k for k, v in data.items() if v is None and k not in ("name", "bounds"))
+        if null:
+            raise ScenarioError(f"{null[0]}: expected a value, got null (None).")
         kwargs = {k: v for k, v in data.items() if v is not None}
         return cls(**kwargs)
 

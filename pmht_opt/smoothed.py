@@ -152,6 +152,13 @@ def _polyline_start(scenario: Scenario, routes: list[np.ndarray], windows: np.nd
     return paths
 
 
+def _same_places(a: Scenario | None, b: Scenario) -> bool:
+    """Whether a tour ordered on ``a`` (``None``: unknown) is one of ``b``'s locales and starts."""
+    if a is None or a is b:
+        return True
+    return bool(np.array_equal(a.locales, b.locales) and np.array_equal(a.start_positions, b.start_positions))
+
+
 def plan_smoothed(
     scenario: Scenario,
     tour: TourResult | Sequence[Any],
@@ -209,6 +216,15 @@ def plan_smoothed(
         message names the platform and the locales.
     """
     routes = check_routes(scenario, tour.routes if isinstance(tour, TourResult) else tour)
+    if isinstance(tour, TourResult) and not _same_places(tour.scenario, scenario):
+        raise ConfigError(
+            "tour: it was ordered for a scenario with other locales or starts than this one; order this "
+            "scenario's locales (or pass the routes themselves)."
+        )
+    if converge is not None and not callable(converge):
+        raise ConfigError(
+            f"converge: expected a stopping criterion such as Converged(...) or None, got {converge!r}."
+        )
     cfg = config if config is not None else PMHTConfig()
     if not isinstance(cfg, PMHTConfig):
         raise ConfigError(f"config must be a PMHTConfig, got {type(cfg).__name__}.")

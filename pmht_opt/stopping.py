@@ -185,6 +185,8 @@ class AnyOf:
     criteria: tuple[StoppingCriterion, ...]
 
     def __post_init__(self) -> None:
+        if callable(self.criteria) or not isinstance(self.criteria, (tuple, list)):
+            raise ConfigError(f"AnyOf: expected a sequence of stopping criteria, got {self.criteria!r}.")
         crit = tuple(self.criteria)
         for c in crit:
             if not callable(c):

@@ -313,3 +313,16 @@ def plan_boundary(what: str) -> Callable[[Callable[P, R]], Callable[P, R]]:
         return inner
 
     return wrap
+
+
+def solver_settings(name: str, settings: Any) -> None:
+    """Raise :class:`ConfigError` naming ``name`` unless ``settings`` is a dict of named settings none of
+    which is NaN (each backend checks the values it knows; NaN is what none of them can use)."""
+    if not isinstance(settings, dict):
+        raise ConfigError(f"{name}: expected a dict, got {type(settings).__name__}.")
+    bad = [k for k in settings if not isinstance(k, str)]
+    if bad:
+        raise ConfigError(f"{name}: expected setting names (strings), got {bad[0]!r}.")
+    for key, value in settings.items():
+        if isinstance(value, float) and math.isnan(value):
+            raise ConfigError(f"{name}: {key} is NaN, which no backend can use.")

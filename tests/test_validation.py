@@ -198,6 +198,112 @@ def test_configs_constraints_and_orderers_name_the_field(call: Any, error: type,
     assert field_of(info.value) == field
 
 
+def two_platforms() -> po.Scenario:
+    return scenario(starts=[[0.0, 0.0], [4.0, 4.0]])
+
+
+def mutated_radius() -> po.Scenario:
+    sc = scenario()
+    sc.coverage_radius = "0.3"  # type: ignore[assignment]
+    return sc
+
+
+@pytest.mark.parametrize(
+    ("call", "error", "field"),
+    [
+        # The coverage planner and the orderers: impossible or unchecked requests.
+        (
+            lambda: po.plan_coverage(scenario(), config=po.PMHTConfig(constraints=[po.VisitAll(0.01)])),
+            ConfigError,
+            "config.constraints",
+        ),
+        (lambda: po.plan_coverage(scenario(), iterations=10**9), ConfigError, "iterations"),
+        (lambda: po.plan_coverage(scenario(), starts=10**6), ConfigError, "starts"),
+        (lambda: po.plan_coverage(scenario(), seed=2**32 - 1, starts=2), ConfigError, "seed"),
+        (lambda: po.plan_coverage(two_platforms().replace(locales=[[1.0, 1.0]])), ConfigError, "scenario"),
+        (lambda: po.plan_coverage(mutated_radius()), ConfigError, "scenario.coverage_radius"),
+        (lambda: po.order_locales(scenario(), "ortools", time_limit=1e300), ConfigError, "time_limit"),
+        (
+            lambda: po.order_locales(scenario(), "ortools", solution_limit=2**63),
+            ConfigError,
+            "solution_limit",
+        ),
+        (lambda: po.order_locales(scenario(), "pyvrp", iterations=2**70), ConfigError, "iterations"),
+        (lambda: po.order_locales(two_platforms().replace(locales=[[1.0, 1.0]])), ConfigError, "scenario"),
+        # The smoothed planner's tour and options.
+        (lambda: po.plan_smoothed(None, [[0, 1]]), ConfigError, "scenario"),
+        (lambda: po.tour_distance(None, [[0, 1]]), ConfigError, "scenario"),
+        (
+            lambda: po.plan_smoothed(scenario(), [[True, 0, *range(2, len(LOCALES))]], FAST),
+            ConfigError,
+            "routes[0]",
+        ),
+        (
+            lambda: po.plan_smoothed(scenario(), [list(range(len(LOCALES)))], FAST, converge="x"),
+            ConfigError,
+            "converge",
+        ),
+        (
+            lambda: po.plan_smoothed(
+                scenario(),
+                po.TourResult.from_routes(
+                    scenario(locales=np.add(LOCALES, 0.5)), [list(range(len(LOCALES)))]
+                ),
+                FAST,
+            ),
+            ConfigError,
+            "tour",
+        ),
+        # The single M-step, the run's observers and priors, the model.
+        (
+            lambda: po.solve_mstep(
+                scenario(), np.zeros((20, 1)), np.zeros((20, 1, 2)), 0.01, constraints=None
+            ),
+            ConfigError,
+            "constraints",
+        ),
+        (
+            lambda: po.solve_mstep(scenario(), np.zeros((20, 1)), np.zeros((20, 1, 2)), 0.01, settings="x"),
+            ConfigError,
+            "settings",
+        ),
+        (
+            lambda: po.solve_mstep(
+                scenario(), np.zeros((20, 1)), np.zeros((20, 1, 2)), 0.01, accept_inaccurate="yes"
+            ),
+            ConfigError,
+            "accept_inaccurate",
+        ),
+        (lambda: po.EMCallbacks(after_iteration=1), ConfigError, "EMCallbacks.after_iteration"),
+        (lambda: po.AnyOf(po.MaxIterations(1)), ConfigError, "AnyOf"),
+        (lambda: po.MotionModel(dt=float("nan")), ScenarioError, "dt"),
+        (lambda: po.MotionModel(q=-1.0), ScenarioError, "q"),
+        (lambda: scenario().replace(locales=None), ScenarioError, "locales"),
+        (
+            lambda: po.Scenario.from_dict({**scenario().to_dict(), "coverage_radius": None}),
+            ScenarioError,
+            "coverage_radius",
+        ),
+        # Mission settings built in Python, whichever planner they name.
+        (lambda: po.io.PlannerSettings(ordering="ga"), ConfigError, "ordering"),
+        (lambda: po.io.PlannerSettings(paper="yes"), ConfigError, "paper"),
+        (lambda: po.io.PlannerSettings(radius=-1), ConfigError, "radius"),
+        (lambda: po.io.PlannerSettings(ordering={"method": "ga", "bogus": 1}), ConfigError, "ordering.bogus"),
+    ],
+)
+def test_planners_orderers_and_settings_name_the_field(call: Any, error: type, field: str) -> None:
+    with pytest.raises(error) as info:
+        call()
+    assert field_of(info.value) == field
+
+
+def test_huge_priors_are_normalised_without_overflow() -> None:
+    sc = scenario(horizon=20)
+    huge = po.plan_pmht(sc, FAST, time_prior=np.full((len(LOCALES), 20), 1e308))
+    plain = po.plan_pmht(sc, FAST, time_prior=np.ones((len(LOCALES), 20)))
+    assert np.array_equal(huge.positions, plain.positions)
+
+
 def test_metrics_name_the_field() -> None:
     res = po.plan_pmht(scenario(), FAST)
     for bad in ("a", True, -1.0, 10**400):

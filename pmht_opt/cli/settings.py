@@ -78,6 +78,8 @@ def mission_of(args: argparse.Namespace) -> Mission:
     """The mission file (or built-in example) the options name, with their settings applied."""
     # A schedule given here replaces the file's: the file's is then not checked against its r.
     replaced = getattr(args, "no_anneal", False) or getattr(args, "anneal", None) is not None
+    if getattr(args, "example", None) is not None and args.mission is not None:
+        raise ConfigError(f"give a mission file or --example NAME, not both (got {args.mission} too).")
     if getattr(args, "example", None) is not None:
         mission = load_mission(example_path(args.example), check_schedule=not replaced)
     elif args.mission is None:

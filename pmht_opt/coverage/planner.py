@@ -11,13 +11,17 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.constraints.params import positive_number
+from pmht_opt.constraints.visits import VisitAll
 from pmht_opt.coverage.search import Candidate, resolve_orderer, search, variants
 from pmht_opt.coverage.tracking import track_routes
 from pmht_opt.exceptions import ConfigError, SolverError
 from pmht_opt.geometry import point_polyline_distance
+from pmht_opt.ordering.pyvrp_ import SEED_MAX
+from pmht_opt.ordering.tour import check_min_tour
 from pmht_opt.planner import PMHTConfig
 from pmht_opt.result import COVERAGE_RTOL, PlanResult
 from pmht_opt.scenario import Scenario
+from pmht_opt.validation import MAX_ITERATIONS
 
 #: Fraction of the coverage radius at which the visit polylines touch the discs: the rest is room for
 #: the smoother to round the polylines' corners without leaving a disc.
@@ -45,9 +49,15 @@ class CoverageProgress:
     elapsed: float
 
 
-def _count(name: str, value: Any, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
-        raise ConfigError(f"{name}: expected an integer >= {minimum}, got {value!r}.")
+#: Most tours (``starts``), rounds, beam and kept candidates a run may ask for: each is a full
+#: ordering or smoothing, seconds apiece.
+COUNT_MAX = 10_000
+
+
+def _count(name: str, value: Any, minimum: int, maximum: int = COUNT_MAX) -> int:
+    integral = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+    if not integral or not minimum <= int(value) <= maximum:
+        raise ConfigError(f"{name}: expected an integer in {minimum}..{maximum}, got {value!r}.")
     return int(value)
 
 
@@ -67,12 +77,20 @@ class _Settings:
 
 
 def _settings(scenario: Any, radius: Any, config: Any, opts: dict[str, Any]) -> _Settings:
-    if not isinstance(scenario, Scenario):
-        raise ConfigError(f"scenario: expected a Scenario, got {type(scenario).__name__}.")
-    rho = scenario.coverage_radius if radius is None else positive_number("radius", radius)
+    check_min_tour(scenario, 1)  # a Scenario with a locale for every platform's tour
+    if radius is None:
+        rho = positive_number("scenario.coverage_radius", scenario.coverage_radius)
+    else:
+        rho = positive_number("radius", radius)
     cfg = PMHTConfig() if config is None else config
     if not isinstance(cfg, PMHTConfig):
         raise ConfigError(f"config: expected a PMHTConfig, got {type(cfg).__name__}.")
+    visits = [c.name for c in cfg.constraints if isinstance(c, VisitAll)]
+    if visits:
+        raise ConfigError(
+            f"config.constraints: {', '.join(visits)} places visits on the locales, which plan_coverage "
+            "already guarantees at its radius; leave it out and pass radius= instead."
+        )
     shrink = positive_number("shrink", opts["shrink"])
     if shrink > 1.0:
         raise ConfigError(f"shrink: expected a number in (0, 1], got {opts['shrink']!r}.")
@@ -83,17 +101,19 @@ def _settings(scenario: Any, radius: Any, config: Any, opts: dict[str, Any]) -> 
     budget = opts["time_budget"]
     if opts["callback"] is not None and not callable(opts["callback"]):
         raise ConfigError(f"callback: expected a callable, got {type(opts['callback']).__name__}.")
+    starts = _count("starts", opts["starts"], 1)
     return _Settings(
         radius=rho,
         config=cfg,
-        seed=_count("seed", opts["seed"], 0),
+        # The tours use seeds seed .. seed + starts - 1, each within the orderers' seed range.
+        seed=_count("seed", opts["seed"], 0, SEED_MAX - (starts - 1)),
         orderer=resolve_orderer(opts["orderer"]),
-        starts=_count("starts", opts["starts"], 1),
+        starts=starts,
         rounds=_count("rounds", opts["rounds"], 0),
         beam=_count("beam", opts["beam"], 1),
         keep=_count("keep", opts["keep"], 1),
         shrink=shrink,
-        iterations=_count("iterations", iterations, 1),
+        iterations=_count("iterations", iterations, 1, MAX_ITERATIONS),
         time_budget=None if budget is None else positive_number("time_budget", budget),
     )
 

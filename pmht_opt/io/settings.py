@@ -24,8 +24,10 @@ from typing import Any
 
 from pmht_opt.anneal import Anneal
 from pmht_opt.constraints.base import Constraint
+from pmht_opt.constraints.params import positive_number
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.io import fields
+from pmht_opt.ordering import ordering_method
 from pmht_opt.planner import PMHTConfig
 
 #: The planners a mission can name.
@@ -91,10 +93,24 @@ class PlannerSettings:
             raise ConfigError(f"iterations: expected a positive integer, got {self.iterations!r}.")
         if self.split not in SPLITS:
             raise ConfigError(f"split: expected one of {', '.join(SPLITS)}, got {self.split!r}.")
+        for key in ("paper", "return_to_base"):
+            if not isinstance(getattr(self, key), bool):
+                raise ConfigError(f"{key}: expected true or false, got {getattr(self, key)!r}.")
+        for key in ("visit_radius", "radius"):
+            if getattr(self, key) is not None:
+                positive_number(key, getattr(self, key))
+        if not isinstance(self.ordering, dict):
+            raise ConfigError(
+                f"ordering: expected a table of a method and its options, got {self.ordering!r}."
+            )
         method = self.ordering.get("method", "ga")
         if method not in ORDERINGS:
             raise ConfigError(f"ordering.method: expected one of {', '.join(ORDERINGS)}, got {method!r}.")
         self.ordering = {"method": method, **{k: v for k, v in self.ordering.items() if k != "method"}}
+        try:  # the option names, whichever planner runs (their values when the ordering runs)
+            ordering_method(method, self.ordering_options)
+        except ConfigError as err:
+            raise ConfigError(f"ordering.{err}") from None
         self.config(())  # the library's own checks (solver name, tolerances, schedule)
 
     @property

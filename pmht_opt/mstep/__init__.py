@@ -89,6 +89,12 @@ def solve_mstep(
     W = _weights("W", W, (T, M), nonneg=True)
     WZ = _weights("WZ", WZ, (T, M, 2), nonneg=False)
     r = validation.real("r", r, ConfigError, *validation.R_RANGE)
+    if isinstance(constraints, Constraint) or not isinstance(constraints, (Sequence, set, frozenset)):
+        raise ConfigError(f"constraints: expected a sequence of constraints, got {constraints!r}.")
+    if not isinstance(accept_inaccurate, (bool, np.bool_)):
+        raise ConfigError(f"accept_inaccurate: expected True or False, got {accept_inaccurate!r}.")
+    settings = {} if settings is None else settings
+    validation.solver_settings("settings", settings)
     cons = tuple(constraints)
     for con in cons:
         if not isinstance(con, Constraint):

@@ -7,7 +7,7 @@ TourResult`` registered in :data:`METHODS`. OR-Tools and PyVRP are imported only
 from __future__ import annotations
 
 import inspect
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from pmht_opt.exceptions import ConfigError
@@ -49,16 +49,22 @@ def order_locales(scenario: Scenario, method: str = "ga", **options: Any) -> Tou
     """
     if not isinstance(scenario, Scenario):
         raise ConfigError(f"scenario: expected a Scenario, got {type(scenario).__name__}.")
+    return ordering_method(method, options)(scenario, **options)
+
+
+def ordering_method(method: Any, options: Mapping[str, Any] | None = None) -> Callable[..., TourResult]:
+    """The solve function of ``method``, after checking that it takes every one of ``options``' names
+    (their values are checked when it runs); ConfigError naming the method or the first unknown option."""
     solve = METHODS.get(method) if isinstance(method, str) else None
     if solve is None:
         raise ConfigError(f"method: expected one of {', '.join(sorted(METHODS))}, got {method!r}.")
     accepted = [p for p in inspect.signature(solve).parameters if p != "scenario"]
-    unknown = sorted(set(options) - set(accepted))
+    unknown = sorted(set(options or {}) - set(accepted))
     if unknown:
         raise ConfigError(
             f"{unknown[0]}: not an option of method {method!r}; it takes {', '.join(accepted)}."
         )
-    return solve(scenario, **options)
+    return solve
 
 
 __all__ = [
@@ -70,6 +76,7 @@ __all__ = [
     "TourResult",
     "check_routes",
     "order_locales",
+    "ordering_method",
     "route_costs",
     "route_legs",
     "solve_ga_tsp",

@@ -32,7 +32,14 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.exceptions import ConfigError, MissingDependencyError, SolverError
-from pmht_opt.ordering.tour import TourResult, _check_closed, _check_int, check_min_tour, tour_distance
+from pmht_opt.ordering.tour import (
+    COUNT_MAX,
+    TourResult,
+    _check_closed,
+    _check_int,
+    check_min_tour,
+    tour_distance,
+)
 from pmht_opt.scenario import Scenario
 
 #: Integer cost of the longest arc; leaves int64 headroom for OR-Tools' sums and GLS penalties.
@@ -125,6 +132,11 @@ def arc_costs(scenario: Scenario, closed: bool = False) -> tuple[np.ndarray, flo
     return cost, scale
 
 
+#: The longest time limit OR-Tools is given (seconds, about 30 years): its duration field overflows
+#: not far above.
+TIME_LIMIT_MAX = 1e9
+
+
 def _check_time_limit(time_limit: Any) -> float | None:
     if time_limit is None:
         return None
@@ -132,8 +144,11 @@ def _check_time_limit(time_limit: Any) -> float | None:
         value = float(time_limit) if isinstance(time_limit, numbers.Real) else math.nan
     except OverflowError:  # an integer beyond the float range
         value = math.nan
-    if isinstance(time_limit, bool) or not (math.isfinite(value) and value > 0):
-        raise ConfigError(f"time_limit: expected a positive number of seconds or None, got {time_limit!r}.")
+    if isinstance(time_limit, bool) or not (math.isfinite(value) and 0 < value <= TIME_LIMIT_MAX):
+        raise ConfigError(
+            f"time_limit: expected a positive number of seconds up to {TIME_LIMIT_MAX:g} or None, "
+            f"got {time_limit!r}."
+        )
     return value
 
 
@@ -195,7 +210,7 @@ def solve_ortools(
     first = _choice("first_solution", first_solution, FIRST_SOLUTIONS)
     meta = _choice("metaheuristic", metaheuristic, METAHEURISTICS)
     if solution_limit is not None:
-        solution_limit = _check_int("solution_limit", solution_limit, 1)
+        solution_limit = _check_int("solution_limit", solution_limit, 1, COUNT_MAX)
     elif limit is None:
         solution_limit = DEFAULT_SOLUTION_LIMIT
     if not isinstance(log_search, bool):

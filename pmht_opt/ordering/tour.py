@@ -35,6 +35,8 @@ DISTANCE_RTOL = 1e-9
 
 def _as_route(index: int, route: Any, n_locales: int) -> np.ndarray:
     """One route as an ``intp`` array, or ConfigError saying what is wrong with it."""
+    if isinstance(route, (list, tuple)) and any(isinstance(v, (bool, np.bool_)) for v in route):
+        raise ConfigError(f"routes[{index}]: expected integer locale indices, got a boolean in {route!r}.")
     try:
         arr = np.asarray(route)
     except (TypeError, ValueError):
@@ -76,6 +78,7 @@ def check_routes(scenario: Scenario, routes: Sequence[Any]) -> list[np.ndarray]:
         Naming what is wrong: the number of routes, a route that is not a 1-D integer sequence, an index
         out of range, a locale visited more than once or not at all.
     """
+    check_scenario(scenario)
     if isinstance(routes, (str, bytes)) or not isinstance(routes, (Sequence, np.ndarray)):
         raise ConfigError(f"routes: expected a sequence of routes, got {type(routes).__name__}.")
     M, N = scenario.n_platforms, scenario.n_locales
@@ -288,19 +291,39 @@ class TourResult:
         return plot_paths(sc, legs, path, title=label, assignment=self.assignment)
 
 
-def _check_int(name: str, value: Any, minimum: int) -> int:
-    """An integer parameter ``>= minimum`` or ConfigError naming it."""
+#: Upper bound of iteration counts and limits of the orderers: beyond it a run would not end in any
+#: useful time (and the solvers' own integer fields would overflow).
+COUNT_MAX = 10_000_000
+
+
+def _check_int(name: str, value: Any, minimum: int, maximum: int | None = None) -> int:
+    """An integer parameter in ``minimum..maximum`` or ConfigError naming it."""
+    expected = f"an integer >= {minimum}" if maximum is None else f"an integer in {minimum}..{maximum}"
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise ConfigError(f"{name}: expected an integer >= {minimum}, got {value!r}.")
-    if int(value) < minimum:
-        raise ConfigError(f"{name}: expected an integer >= {minimum}, got {int(value)}.")
+        raise ConfigError(f"{name}: expected {expected}, got {value!r}.")
+    if int(value) < minimum or (maximum is not None and int(value) > maximum):
+        raise ConfigError(f"{name}: expected {expected}, got {int(value)}.")
     return int(value)
+
+
+def check_scenario(scenario: Any) -> Scenario:
+    """``scenario`` if it is a :class:`Scenario`, else ConfigError naming it."""
+    if not isinstance(scenario, Scenario):
+        raise ConfigError(f"scenario: expected a Scenario, got {type(scenario).__name__}.")
+    return scenario
 
 
 def check_min_tour(scenario: Scenario, min_tour: Any) -> int:
     """``min_tour`` as an int, checked against the scenario (``min_tour * M <= N``)."""
+    check_scenario(scenario)
     value = _check_int("min_tour", min_tour, 1)
     M, N = scenario.n_platforms, scenario.n_locales
+    if N < M:
+        raise ConfigError(
+            f"scenario: an ordering gives every platform a route of at least one locale, and this "
+            f"scenario has {N} locales for {M} platforms; plan it with plan_pmht, which can leave "
+            "platforms idle."
+        )
     if value * M > N:
         raise ConfigError(
             f"min_tour: expected min_tour * platforms <= locales, i.e. at most {N // M} for {M} platforms "
