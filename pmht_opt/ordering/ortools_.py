@@ -32,14 +32,7 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.exceptions import ConfigError, MissingDependencyError, SolverError
-from pmht_opt.ordering.tour import (
-    COUNT_MAX,
-    TourResult,
-    _check_closed,
-    _check_int,
-    check_min_tour,
-    tour_distance,
-)
+from pmht_opt.ordering.tour import TourResult, _check_closed, check_count, check_min_tour, tour_distance
 from pmht_opt.scenario import Scenario
 
 #: Integer cost of the longest arc; leaves int64 headroom for OR-Tools' sums and GLS penalties.
@@ -210,7 +203,7 @@ def solve_ortools(
     first = _choice("first_solution", first_solution, FIRST_SOLUTIONS)
     meta = _choice("metaheuristic", metaheuristic, METAHEURISTICS)
     if solution_limit is not None:
-        solution_limit = _check_int("solution_limit", solution_limit, 1, COUNT_MAX)
+        solution_limit = check_count("solution_limit", solution_limit)
     elif limit is None:
         solution_limit = DEFAULT_SOLUTION_LIMIT
     if not isinstance(log_search, bool):

@@ -47,14 +47,7 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.exceptions import ConfigError, MissingDependencyError, SolverError
-from pmht_opt.ordering.tour import (
-    COUNT_MAX,
-    TourResult,
-    _check_closed,
-    _check_int,
-    check_min_tour,
-    tour_distance,
-)
+from pmht_opt.ordering.tour import TourResult, _check_closed, check_count, check_min_tour, tour_distance
 from pmht_opt.scenario import Scenario
 
 #: Integer cost of the longest arc at most (relative rounding of about 5e-9 per arc).
@@ -206,9 +199,9 @@ def solve_pyvrp(
         The answer leaves a platform with fewer than ``min_tour`` locales.
     """
     seed = _check_seed(seed)
-    iterations = _check_int("iterations", iterations, 1, COUNT_MAX)
+    iterations = check_count("iterations", iterations)
     if no_improvement is not None:
-        no_improvement = _check_int("no_improvement", no_improvement, 1, COUNT_MAX)
+        no_improvement = check_count("no_improvement", no_improvement)
     min_tour = check_min_tour(scenario, min_tour)
     closed = _check_closed(closed)
     _import_pyvrp()

@@ -306,6 +306,11 @@ def _check_int(name: str, value: Any, minimum: int, maximum: int | None = None) 
     return int(value)
 
 
+def check_count(name: str, value: Any) -> int:
+    """An iteration count or limit of an orderer: an integer in ``1..COUNT_MAX``, or ConfigError."""
+    return _check_int(name, value, 1, COUNT_MAX)
+
+
 def check_scenario(scenario: Any) -> Scenario:
     """``scenario`` if it is a :class:`Scenario`, else ConfigError naming it."""
     if not isinstance(scenario, Scenario):

@@ -35,10 +35,10 @@ from pmht_opt.ordering.ga.encoding import PopulationCost, heads_to_routes, rando
 from pmht_opt.ordering.ga.operators import OPERATOR_SETS, Breaks, Layout, MovePlan, OperatorSet
 from pmht_opt.ordering.ga.restart import NoRestart, RestartPolicy, StallRestart
 from pmht_opt.ordering.tour import (
-    COUNT_MAX,
     TourResult,
     _check_closed,
     _check_int,
+    check_count,
     check_min_tour,
     tour_distance,
 )
@@ -93,8 +93,7 @@ class GAParams:
             raise ConfigError(f"population: expected a multiple of {group} up to {POPULATION_MAX}, got {pop}")
         object.__setattr__(self, "population", int(pop))
         if self.iterations is not None:
-            # At most COUNT_MAX generations: minutes on the paper's scenarios with the default population.
-            iterations = _check_int("iterations", self.iterations, 1, COUNT_MAX)
+            iterations = check_count("iterations", self.iterations)
             object.__setattr__(self, "iterations", iterations)
         object.__setattr__(self, "min_tour", _check_int("min_tour", self.min_tour, 1))
         if self.restart is not None and not isinstance(self.restart, RestartPolicy):
