@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from pmht_opt.exceptions import ScenarioError
+from pmht_opt.exceptions import ConfigError, ScenarioError
 
 #: WGS84 semi-major axis (m).
 WGS84_A = 6378137.0
@@ -100,7 +100,10 @@ class GeoOrigin:
             value: Any = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
                 raise ScenarioError(f"origin.{key}: expected a number of degrees, got {value!r}.")
-            degrees = float(value)
+            try:
+                degrees = float(value)
+            except OverflowError:  # an integer beyond the float range
+                degrees = math.inf
             if not math.isfinite(degrees) or abs(degrees) > limit:
                 raise ScenarioError(
                     f"origin.{key}: expected degrees in [-{limit:g}, {limit:g}], got {value!r}."
@@ -189,3 +192,10 @@ class LocalTangentPlane:
             lat, lon, h = ecef_to_geodetic(self.center + enu @ self.rotation)
             u = u - h
         return np.stack([lat, lon], axis=-1)
+
+
+def check_origin(origin: Any) -> GeoOrigin | None:
+    """``origin`` if it is a :class:`GeoOrigin` or ``None``, else :class:`ConfigError` naming it."""
+    if origin is not None and not isinstance(origin, GeoOrigin):
+        raise ConfigError(f"origin: expected a GeoOrigin or None, got {type(origin).__name__}.")
+    return origin

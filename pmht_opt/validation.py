@@ -21,17 +21,19 @@ code (progress callbacks, stopping criteria) pass through unchanged (:func:`call
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import numbers
-from collections.abc import Callable, Iterable
+import os
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 
 import solvers
-from pmht_opt.exceptions import ConfigError, PmhtOptError, SolverError
+from pmht_opt.exceptions import ConfigError, PmhtOptError, ScenarioError, SolverError
 
 #: Time step ``dt`` (s) the numerics handle: the process-noise covariance holds ``dt^5``, whose Cholesky
 #: factor underflows or overflows the exact smoother outside this range.
@@ -240,11 +242,32 @@ def integers(field: str, values: Any, error: type[PmhtOptError], lo: int) -> tup
     return tuple(integer(f"{field}[{i}]", v, error, lo) for i, v in enumerate(values))
 
 
+def file_path(field: str, path: Any) -> Path:
+    """``path`` (a string or path-like) as a :class:`~pathlib.Path`, else :class:`ConfigError` naming
+    ``field``."""
+    if isinstance(path, bool) or not isinstance(path, (str, os.PathLike)) or not str(path):
+        raise ConfigError(f"{field}: expected a file path, got {describe(path)}.")
+    return Path(path)
+
+
 def output_file(path: str | Path) -> Path:
     """``path`` with its missing folders created: every writer of the project treats them alike."""
-    out = Path(path)
+    out = file_path("path", path)
     out.parent.mkdir(parents=True, exist_ok=True)
     return out
+
+
+@contextlib.contextmanager
+def writing(path: Any) -> Iterator[Path]:
+    """The output file ``path`` (missing folders created) for the block that writes it; an ``OSError``
+    on the way (a directory in its place, no permission, a full disk) becomes :class:`ScenarioError`
+    naming the path, as for every other file the project cannot use."""
+    out = file_path("path", path)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        yield out
+    except OSError as err:
+        raise ScenarioError(f"path: cannot write {str(out)!r}: {err.strerror or err}.") from None
 
 
 # ------------------------------------------------------------------ inside a plan

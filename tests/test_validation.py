@@ -566,3 +566,56 @@ def test_mission_and_point_files_that_are_not_utf8_are_refused(tmp_path: Path) -
     mission.write_text('locales = "sites.csv"\nstarts = [[0.0, 0.0]]\n')
     with pytest.raises(ScenarioError, match=r"sites\.csv: not UTF-8"):
         load_mission(mission)
+
+
+PLAN_FILES = [
+    ("p.plan", "[1, 2]", "not a QGroundControl plan"),
+    ("p.plan", '{"fileType": "Plan"}', "mission, items or their params are malformed"),
+    ("p.plan", '{"fileType": "Plan", "mission": {"items": [{"command": 16}]}}', "malformed"),
+    ("p.plan", '{"fileType": "Plan", "mission": {"items": [{"command": 16, "params": [1]}]}}', "no latitude"),
+    ("g.geojson", "[1]", "frame None"),
+    ("g.geojson", '{"pmht_opt": {"frame": "plane"}, "features": []}', "no path feature"),
+    (
+        "g.geojson",
+        '{"pmht_opt": {"frame": "plane"}, "features": [{"properties": {"kind": "path"}, "geometry": '
+        '{"coordinates": [[0, 0]]}}]}',
+        "malformed",
+    ),
+    (
+        "g.geojson",
+        '{"pmht_opt": {"frame": "plane"}, "features": [{"properties": {"kind": "path", "platform": 0}, '
+        '"geometry": {"coordinates": [[1]]}}]}',
+        "finite",
+    ),
+    ("c.csv", b"\xff\xfe", "cannot read"),
+    ("p.plan", b"\xff\xfe", "cannot read"),
+]
+
+
+@pytest.mark.parametrize(("name", "content", "message"), PLAN_FILES)
+def test_malformed_plan_files_are_scenario_errors(
+    tmp_path: Path, name: str, content: Any, message: str
+) -> None:
+    path = tmp_path / name
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content)
+    read = {".plan": po.io.read_qgc_plan, ".geojson": po.io.read_geojson_paths, ".csv": po.io.read_plan_csv}
+    with pytest.raises(ScenarioError, match=message):
+        read[path.suffix](path)
+
+
+def test_exports_check_their_path_origin_and_format(tmp_path: Path) -> None:
+    res = po.plan_pmht(scenario(), FAST)
+    with pytest.raises(ScenarioError, match=r"path: cannot write .*: Is a directory"):
+        res.to_csv(tmp_path)
+    with pytest.raises(ConfigError, match="path: expected a file path, got None"):
+        res.to_geojson(None)  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match="origin: expected a GeoOrigin or None, got tuple"):
+        res.to_csv(tmp_path / "a.csv", origin=(35.0, 149.0))  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match=r"matplotlib cannot write '\.xyz' figures"):
+        res.plot(tmp_path / "f.xyz")
+    assert res.plot(tmp_path / "f") == tmp_path / "f.png" and (tmp_path / "f.png").stat().st_size > 0
+    with pytest.raises(ScenarioError, match=r"origin\.lat"):
+        po.geo.GeoOrigin(lat=2**2000, lon=0.0)

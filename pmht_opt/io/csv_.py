@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.exceptions import ScenarioError
-from pmht_opt.geo import GeoOrigin
+from pmht_opt.geo import GeoOrigin, check_origin
 from pmht_opt.model import AX, AY, PX, PY, STATE_DIM, VX, VY
-from pmht_opt.validation import output_file
+from pmht_opt.validation import file_path, writing
 
 #: The columns of a plan's CSV (``lat`` and ``lon`` follow with an origin).
 COLUMNS = ("platform", "step", "time", "x", "y", "vx", "vy", "ax", "ay")
@@ -33,12 +33,12 @@ def export_csv(result: Any, path: str | Path, origin: GeoOrigin | None = None) -
     Path
         ``path``.
     """
-    path = output_file(path)
+    origin = check_origin(origin)
     states = np.asarray(result.states)
     M, T1, _ = states.shape
     dt = float(result.scenario.dt)
     latlon = origin.plane.to_geodetic(states[:, :, [PX, PY]]) if origin is not None else None
-    with path.open("w", newline="") as fh:
+    with writing(path) as path, path.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow([*COLUMNS, *(("lat", "lon") if latlon is not None else ())])
         for m in range(M):
@@ -59,9 +59,12 @@ def read_plan_csv(path: str | Path) -> np.ndarray:
     ScenarioError
         A missing column, a value that is not a number, or rows that do not make whole paths.
     """
-    path = Path(path)
-    with path.open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
+    path = file_path("path", path)
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+    except (OSError, ValueError, csv.Error) as err:  # unreadable, not UTF-8, not CSV
+        raise ScenarioError(f"cannot read {path.name}: {err}.") from None
     if not rows:
         raise ScenarioError(f"{path.name}: no rows.")
     missing = [c for c in COLUMNS if c not in rows[0]]

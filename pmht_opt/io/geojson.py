@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.exceptions import ScenarioError
-from pmht_opt.geo import GeoOrigin
+from pmht_opt.geo import GeoOrigin, check_origin
 from pmht_opt.io.frame import GEO_DECIMALS
-from pmht_opt.validation import output_file
+from pmht_opt.validation import file_path, writing
 
 #: Every feature's ``kind`` property.
 KINDS = ("path", "locale", "start")
@@ -113,27 +113,42 @@ def _flat(geometry: dict[str, Any]) -> list[list[float]]:
 
 def export_geojson(result: Any, path: str | Path, origin: GeoOrigin | None = None) -> Path:
     """Write the plan ``result`` to ``path`` as GeoJSON (module notes); returns ``path``."""
-    path = output_file(path)
-    path.write_text(json.dumps(plan_geojson(result, origin)) + "\n")
+    text = json.dumps(plan_geojson(result, check_origin(origin))) + "\n"
+    with writing(path) as path:
+        path.write_text(text, encoding="utf-8")
     return path
 
 
 def read_geojson_paths(path: str | Path, origin: GeoOrigin | None = None) -> list[np.ndarray]:
     """The platforms' paths ``(T+1, 2)`` in the plane, in platform order, from a file written by
     :func:`export_geojson` (``origin`` must be the one it was written with, or ``None``)."""
-    path = Path(path)
+    path = file_path("path", path)
+    origin = check_origin(origin)
     try:
-        obj = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
+        obj = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as err:  # unreadable, not UTF-8, not JSON
         raise ScenarioError(f"cannot read {path.name}: {err}.") from None
-    frame = (obj.get("pmht_opt") or {}).get("frame")
+    meta = obj.get("pmht_opt") if isinstance(obj, dict) else None
+    frame = meta.get("frame") if isinstance(meta, dict) else None
     if (frame == "plane") != (origin is None):
         raise ScenarioError(f"{path.name}: frame {frame!r} does not match the origin given ({origin}).")
-    found = [
-        (f["properties"]["platform"], np.asarray(f["geometry"]["coordinates"], dtype=float))
-        for f in obj.get("features", [])
-        if (f.get("properties") or {}).get("kind") == "path"
-    ]
+    try:
+        found = [
+            (int(f["properties"]["platform"]), np.asarray(f["geometry"]["coordinates"], dtype=float))
+            for f in obj.get("features", [])
+            if (f.get("properties") or {}).get("kind") == "path"
+        ]
+        platforms = [m for m, _ in found]
+        if sorted(platforms) != list(range(len(found))):
+            raise ValueError(f"the path features' platforms are {sorted(platforms)}, not 0..{len(found) - 1}")
+        if any(c.ndim != 2 or c.shape[1] != 2 or not np.all(np.isfinite(c)) for _, c in found):
+            raise ValueError("a path's coordinates are not a list of finite [x, y] pairs")
+    except (KeyError, IndexError, TypeError, ValueError, AttributeError) as err:
+        raise ScenarioError(
+            f"{path.name}: not a plan written by pmht-opt (its path features are malformed: {err})."
+        ) from None
+    if not found:
+        raise ScenarioError(f"{path.name}: holds no path feature.")
     found.sort(key=lambda item: item[0])
     if origin is None:
         return [c for _, c in found]

@@ -55,7 +55,7 @@ from pmht_opt.io.points import read_points
 from pmht_opt.io.settings import PlannerSettings, read_settings
 from pmht_opt.io.toml_ import dumps
 from pmht_opt.scenario import Scenario
-from pmht_opt.validation import output_file
+from pmht_opt.validation import writing
 
 #: Scenario fields in files, and how each is read.
 SCENARIO_FIELDS = ("name", "horizon", "dt", "q", "r", "bounds", "coverage_radius", "locales", "starts")
@@ -278,8 +278,6 @@ def save_mission(mission: Mission, path: str | Path) -> Path:
         text = dumps(data, header="pmht-opt mission")
     else:
         raise ScenarioError(f"{path.name}: mission files end in .toml or .json.")
-    try:
-        output_file(path).write_text(text, encoding="utf-8")
-    except OSError as err:
-        raise ScenarioError(f"path: cannot write {str(path)!r}: {err.strerror or err}.") from err
+    with writing(path) as out:
+        out.write_text(text, encoding="utf-8")
     return path

@@ -34,10 +34,10 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.exceptions import ConfigError, ScenarioError
-from pmht_opt.geo import GeoOrigin
+from pmht_opt.geo import GeoOrigin, check_origin
 from pmht_opt.geometry import point_polyline_distance
 from pmht_opt.io.frame import GEO_DECIMALS
-from pmht_opt.validation import output_file
+from pmht_opt.validation import file_path, writing
 
 #: MAVLink commands used.
 NAV_WAYPOINT, NAV_LAND, NAV_TAKEOFF, DO_CHANGE_SPEED = 16, 21, 22, 178
@@ -243,13 +243,14 @@ def export_qgc_plan(
     list of Path
         The files written, in platform order.
     """
-    if origin is None:
+    if check_origin(origin) is None:
         raise ConfigError("origin: a QGroundControl plan needs a geo-referenced mission (an origin).")
     flight = _Flight(altitude, speed, tolerance, acceptance_radius, takeoff, land, firmware, vehicle)
     out = []
     for m, file in enumerate(qgc_paths(path, result.scenario.n_platforms)):
         plan = platform_plan(result, m, origin, flight)
-        output_file(file).write_text(json.dumps(plan, indent=2) + "\n")
+        with writing(file) as out_file:
+            out_file.write_text(json.dumps(plan, indent=2) + "\n", encoding="utf-8")
         out.append(file)
     return out
 
@@ -258,22 +259,30 @@ def read_qgc_plan(path: str | Path) -> dict[str, Any]:
     """The parts of a ``.plan`` file a check needs: ``waypoints (K, 3)`` (lat, lon, alt of the
     waypoint and take-off items, in order), ``speed`` (the last speed change, or ``None``) and
     ``home``."""
-    path = Path(path)
+    path = file_path("path", path)
     try:
-        plan = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
+        plan = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as err:  # unreadable, not UTF-8, not JSON
         raise ScenarioError(f"cannot read {path.name}: {err}.") from None
-    if plan.get("fileType") != "Plan":
-        raise ScenarioError(f"{path.name}: not a QGroundControl plan (fileType {plan.get('fileType')!r}).")
-    mission = plan["mission"]
-    points, speed = [], None
-    for item in mission["items"]:
-        if item["command"] in (NAV_TAKEOFF, NAV_WAYPOINT):
-            points.append(item["params"][4:7])
-        elif item["command"] == DO_CHANGE_SPEED:
-            speed = item["params"][1]
-    return {
-        "waypoints": np.asarray(points, dtype=float),
-        "speed": speed,
-        "home": mission["plannedHomePosition"],
-    }
+    if not isinstance(plan, dict) or plan.get("fileType") != "Plan":
+        kind = plan.get("fileType") if isinstance(plan, dict) else type(plan).__name__
+        raise ScenarioError(f"{path.name}: not a QGroundControl plan (fileType {kind!r}).")
+    try:
+        mission = plan["mission"]
+        points, speed = [], None
+        for item in mission["items"]:
+            if item["command"] in (NAV_TAKEOFF, NAV_WAYPOINT):
+                point = [float(v) for v in item["params"][4:7]]
+                if len(point) != 3:
+                    raise IndexError("a waypoint's params hold no latitude, longitude and altitude")
+                points.append(point)
+            elif item["command"] == DO_CHANGE_SPEED:
+                speed = float(item["params"][1])
+        home = mission["plannedHomePosition"]
+        waypoints = np.asarray(points, dtype=float).reshape(-1, 3)
+    except (KeyError, IndexError, TypeError, ValueError) as err:
+        raise ScenarioError(
+            f"{path.name}: not a readable QGroundControl plan (its mission, items or their params are "
+            f"malformed: {type(err).__name__} {err})."
+        ) from None
+    return {"waypoints": waypoints, "speed": speed, "home": home}

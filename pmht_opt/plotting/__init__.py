@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from pmht_opt.exceptions import ConfigError
 from pmht_opt.plotting.marks import draw_constraint
 from pmht_opt.plotting.paths import draw_paths
 from pmht_opt.plotting.style import (
@@ -41,6 +42,7 @@ from pmht_opt.plotting.style import (
     pyplot,
 )
 from pmht_opt.scenario import Scenario
+from pmht_opt.validation import file_path, writing
 
 __all__ = [
     "AREA_STYLE",
@@ -77,11 +79,26 @@ def plot_paths(
         draw_paths(
             ax, scenario, positions, title=title, assignment=assignment, constraints=constraints, **options
         )
-        out = Path(path)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(out, dpi=120, bbox_inches="tight")
+        out = figure_path(path, fig)
+        with writing(out):
+            fig.savefig(out, dpi=120, bbox_inches="tight")
     finally:
         plt.close(fig)
+    return out
+
+
+def figure_path(path: Any, fig: Any) -> Path:
+    """The file a figure goes to: ``path``, with ``.png`` added when it has no suffix (what matplotlib
+    writes then); ConfigError naming ``path`` for a format matplotlib cannot write."""
+    out = file_path("path", path)
+    if not out.suffix:
+        out = out.with_name(out.name + ".png")
+    formats = fig.canvas.get_supported_filetypes()
+    if out.suffix[1:].lower() not in formats:
+        raise ConfigError(
+            f"path: matplotlib cannot write {out.suffix!r} figures; use one of "
+            f"{', '.join('.' + f for f in sorted(formats))}."
+        )
     return out
 
 
