@@ -118,6 +118,8 @@ def get_session_class(name: str) -> type[QPSession]:
 
 def open_session(problem: QPProblem, solver: str, **settings: Any) -> QPSession:
     """Hand ``problem`` to backend ``solver``, ready to be updated in place and solved repeatedly."""
+    if not isinstance(problem, QPProblem):
+        raise ProblemError(f"problem: expected a QPProblem, got {type(problem).__name__}.")
     return get_session_class(solver)(problem, **settings)
 
 

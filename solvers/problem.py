@@ -19,6 +19,7 @@ trusting the backend that produced it.
 from __future__ import annotations
 
 import enum
+import numbers
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -40,7 +41,7 @@ class Cone:
     def __post_init__(self) -> None:
         if self.kind not in ("zero", "nonneg", "soc"):
             raise ProblemError(f"Expected cone kind 'zero', 'nonneg' or 'soc', got {self.kind!r}.")
-        if int(self.dim) != self.dim or self.dim < 1:
+        if isinstance(self.dim, bool) or not isinstance(self.dim, numbers.Integral) or self.dim < 1:
             raise ProblemError(f"Expected a positive integer cone dimension, got {self.dim!r}.")
         if self.kind == "soc" and self.dim < 2:
             raise ProblemError("Expected a second-order cone of dimension >= 2.")
@@ -61,9 +62,17 @@ def SOC(dim: int) -> Cone:
     return Cone("soc", dim)
 
 
+def _floats(name: str, arr: Any) -> np.ndarray:
+    """``arr`` as a float array, or :class:`ProblemError` naming it (strings, objects, ragged lists)."""
+    try:
+        return np.asarray(arr, dtype=float)
+    except (TypeError, ValueError):
+        raise ProblemError(f"{name} must be numeric, got {type(arr).__name__}.") from None
+
+
 def dense(name: str, arr: Any, shape: tuple[int, ...]) -> np.ndarray:
     """``arr`` as a float array of ``shape`` with finite entries; :class:`ProblemError` naming it if not."""
-    out = np.asarray(arr, dtype=float)
+    out = _floats(name, arr)
     if out.shape != shape:
         raise ProblemError(f"{name} has shape {out.shape}, expected {shape}.")
     if not np.all(np.isfinite(out)):
@@ -73,7 +82,7 @@ def dense(name: str, arr: Any, shape: tuple[int, ...]) -> np.ndarray:
 
 def _as_csc(name: str, mat: Any, shape: tuple[int, int]) -> sp.csc_matrix:
     if not sp.issparse(mat):
-        arr = np.asarray(mat, dtype=float)
+        arr = _floats(name, mat)
         if arr.ndim != 2:
             raise ProblemError(f"{name} must be a 2-D matrix, got an array of shape {arr.shape}.")
         mat = sp.csc_matrix(arr)
@@ -113,7 +122,7 @@ class QPProblem:
     cones: tuple[Cone, ...] = field(default_factory=tuple)
 
     def __post_init__(self) -> None:
-        q = np.asarray(self.q, dtype=float)
+        q = _floats("q", self.q)
         if q.ndim != 1:
             raise ProblemError(f"q must be a vector, got shape {q.shape}.")
         n = q.shape[0]
@@ -121,9 +130,11 @@ class QPProblem:
             raise ProblemError("The problem has no variables.")
         self.q = q
         self.P = _upper_triangle(_as_csc("P", self.P, (n, n)))
-        b = np.asarray(self.b, dtype=float).reshape(-1)
+        b = _floats("b", self.b).reshape(-1)
         self.b = b
         self.A = _as_csc("A", self.A, (b.shape[0], n))
+        if not isinstance(self.cones, (tuple, list)) or not all(isinstance(c, Cone) for c in self.cones):
+            raise ProblemError(f"cones must be a sequence of Cone (Zero, Nonneg, SOC), got {self.cones!r}.")
         self.cones = tuple(self.cones)
         if sum(c.dim for c in self.cones) != b.shape[0]:
             raise ProblemError(

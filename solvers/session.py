@@ -170,7 +170,10 @@ class QPSession(abc.ABC):
 def _checked(name: str, values: np.ndarray | None, size: int) -> np.ndarray | None:
     if values is None:
         return None
-    arr = np.asarray(values, dtype=float).reshape(-1)
+    try:
+        arr = np.asarray(values, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise UpdateError(f"{name} must be numeric, got {type(values).__name__}.") from None
     if arr.shape[0] != size:
         raise UpdateError(f"{name} has {arr.shape[0]} values, the session's problem has {size}.")
     if not np.all(np.isfinite(arr)):

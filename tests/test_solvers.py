@@ -139,6 +139,10 @@ def test_update_with_wrong_size_raises() -> None:
         ({"q": np.zeros(2)}, "P has shape"),
         ({"b": np.zeros(3)}, "cone dimensions add up"),
         ({"q": np.array([np.nan, 0.0, 0.0])}, "q has non-finite"),
+        ({"q": "x"}, "q must be numeric"),
+        ({"P": "x"}, "P must be numeric"),
+        ({"cones": None}, "cones must be a sequence of Cone"),
+        ({"cones": ["x"]}, "cones must be a sequence of Cone"),
     ],
 )
 def test_malformed_problem_raises(kwargs: dict, message: str) -> None:
@@ -339,3 +343,16 @@ def test_a_work_budget_is_shared_by_the_sessions_that_hold_it() -> None:
 def test_a_work_budget_must_be_a_positive_finite_number(limit: object) -> None:
     with pytest.raises(solvers.SettingsError, match="work budget"):
         solvers.WorkBudget(limit)  # type: ignore[arg-type]
+
+
+def test_sessions_refuse_what_is_not_a_problem_or_not_numbers() -> None:
+    with pytest.raises(solvers.ProblemError, match="cone dimension"):
+        Zero("x")  # type: ignore[arg-type]
+    with pytest.raises(solvers.ProblemError, match="problem: expected a QPProblem, got NoneType"):
+        solvers.solve_qp(None, "clarabel")  # type: ignore[arg-type]
+    problem = QPProblem(
+        sp.eye(2, format="csc"), np.zeros(2), sp.eye(2, format="csc"), np.ones(2), (Nonneg(2),)
+    )
+    session = solvers.open_session(problem, "clarabel")
+    with pytest.raises(solvers.UpdateError, match="b must be numeric"):
+        session.update(b="x")  # type: ignore[arg-type]
