@@ -510,6 +510,8 @@ def test_sigint_during_an_osqp_solve_exits_130_without_a_retry(tmp_path: Path) -
         (["plan", "{mission}", "--out", "{tmp}/f.docx"], "--out: unknown figure format '.docx'"),
         (["plan", "{mission}", "--out", "{tmp}"], "is a directory"),
         (["plan", "{bad}"], "b.toml: horizon: expected an integer from 2 to 100000, got 1000000"),
+        (["plan", "{mission}", "--seed", "-1"], "--seed: the pmht planner runs no ordering"),
+        (["plan", "{mission}", "--example", "survey"], "give a mission file or --example NAME, not both"),
     ],
 )
 def test_cli_outputs_and_inputs_are_checked_first(

@@ -87,6 +87,13 @@ def mission_of(args: argparse.Namespace) -> Mission:
     else:
         mission = load_mission(args.mission, check_schedule=not replaced)
     settings = planner_settings(args, mission.planner)
+    if hasattr(args, "ordering") and settings.kind != "smoothed":  # `plan`: the ordering's options
+        given = [f"--{option}" for option in ("ordering", "seed") if getattr(args, option, None) is not None]
+        if given:
+            raise ConfigError(
+                f"{given[0]}: the {settings.kind} planner runs no ordering; "
+                "it applies with --planner smoothed."
+            )
     if settings is not mission.planner:
         try:
             settings.check_r(mission.scenario.r)
