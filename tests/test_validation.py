@@ -621,3 +621,12 @@ def test_exports_check_their_path_origin_and_format(tmp_path: Path) -> None:
     assert res.plot(tmp_path / "f") == tmp_path / "f.png" and (tmp_path / "f.png").stat().st_size > 0
     with pytest.raises(ScenarioError, match=r"origin\.lat"):
         po.geo.GeoOrigin(lat=2**2000, lon=0.0)
+
+
+def test_contradictory_cvxpy_constraints_are_infeasible_not_a_solver_failure() -> None:
+    # Clarabel (through cvxpy) reports this one as a numerical failure at annealing's first r; the
+    # backend's probe of the constraints alone tells the user what is wrong.
+    sc = po.Scenario(locales=LOCALES * 2, starts=[[0.0, 0.0], [4.0, 4.0]], horizon=30, bounds=(0, 4, 0, 4))
+    both = po.CvxpyConstraint(lambda v: [v.positions[0][0, 0] >= 1, v.positions[0][0, 0] <= 0], name="both")
+    with pytest.raises(po.InfeasibleError, match="the constraints both cannot all be met"):
+        po.plan_pmht(sc, po.PMHTConfig(constraints=[both]))

@@ -116,14 +116,15 @@ class JointCvxpyMStep(MStep):
         except solvers.QPError as err:
             raise SolverError(f"cannot set up the M-step problem: {err}") from err
         sol = session.solve()
-        if sol.status in solvers.INFEASIBLE and self.constraints:
+        verdict = sol if sol.status in solvers.INFEASIBLE or sol.ok else self._probe(problem)
+        if verdict is not None and verdict.status in solvers.INFEASIBLE and self.constraints:
             names = sorted({c.name for c in self.constraints if not c.soft})
             raise InfeasibleError(
                 f"{sol.backend}: the constraints {', '.join(names)} cannot all be met (status "
-                f"{sol.raw_status}); the clarabel backend names the platform and time steps. Relax them "
-                "or pass soft=True.",
+                f"{verdict.raw_status}); the clarabel backend names the platform and time steps. Relax "
+                "them or pass soft=True.",
                 backend=sol.backend,
-                status=sol.raw_status,
+                status=verdict.raw_status,
             )
         check_solution(sol, self.accept_inaccurate)
         assert sol.x is not None
@@ -136,6 +137,24 @@ class JointCvxpyMStep(MStep):
             noise=self.layout.noise(x),
             constrained=tuple(range(self.M)),  # native constraints may bind any platform
         )
+
+    def _probe(self, problem: solvers.QPProblem) -> solvers.QPSolution | None:
+        """After a failed solve: the same constraints with no cost, to tell an infeasible problem
+        (which solvers sometimes report as a numerical failure) from a hard one; ``None`` without
+        constraints or when the probe cannot be set up."""
+        if not self.constraints:
+            return None
+        probe = solvers.QPProblem(
+            P=sp.csc_matrix(problem.P.shape),
+            q=np.zeros_like(problem.q),
+            A=problem.A,
+            b=problem.b,
+            cones=problem.cones,
+        )
+        try:
+            return self.session_class(probe, extra=self._native, **self.options).solve()
+        except solvers.QPError:
+            return None
 
 
 def _widen(blocks: list[sp.spmatrix], width: int) -> list[sp.csc_matrix]:
