@@ -195,3 +195,18 @@ def test_qgc_options_and_refusals(tmp_path: Path, geo_plan: tuple[po.PlanResult,
         export_qgc_plan(result, tmp_path / "x.plan", origin, vehicle="blimp")
     with pytest.raises(ConfigError, match="needs a geo-referenced mission"):
         export_qgc_plan(result, tmp_path / "x.plan", None)  # type: ignore[arg-type]
+    bad: list[tuple[dict[str, Any], str]] = [
+        ({"altitude": True}, "altitude"),
+        ({"speed": True}, "speed"),
+        ({"tolerance": "x"}, "tolerance"),
+        ({"tolerance": 0.0}, "tolerance"),
+        ({"takeoff": "no"}, "takeoff"),
+        ({"land": None}, "land"),
+        ({"firmware": ["px4"]}, "firmware"),
+    ]
+    for options, field in bad:
+        with pytest.raises(ConfigError, match=f"^{field}: expected"):
+            export_qgc_plan(result, tmp_path / "x.plan", origin, **options)
+    with pytest.raises(ConfigError, match="result: expected a PlanResult, got NoneType"):
+        export_qgc_plan(None, tmp_path / "x.plan", origin)
+    assert not list(tmp_path.glob("x*.plan"))

@@ -37,6 +37,7 @@ from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.geo import GeoOrigin, check_origin
 from pmht_opt.geometry import point_polyline_distance
 from pmht_opt.io.frame import GEO_DECIMALS
+from pmht_opt.result import PlanResult
 from pmht_opt.validation import file_path, writing
 
 #: MAVLink commands used.
@@ -115,20 +116,34 @@ class _Flight:
     vehicle: str
 
     def __post_init__(self) -> None:
-        if self.firmware not in FIRMWARE:
+        if not isinstance(self.firmware, str) or self.firmware not in FIRMWARE:
             raise ConfigError(f"firmware: expected one of {', '.join(FIRMWARE)}, got {self.firmware!r}.")
-        if self.vehicle not in VEHICLES:
+        if not isinstance(self.vehicle, str) or self.vehicle not in VEHICLES:
             raise ConfigError(f"vehicle: expected one of {', '.join(VEHICLES)}, got {self.vehicle!r}.")
         for name, value in (("altitude", self.altitude), ("acceptance_radius", self.acceptance_radius)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ConfigError(f"{name}: expected a non-negative number of metres, got {value!r}.")
+            _metres(name, value, "a non-negative number of metres")
+        if self.speed is not None:
+            _checked_speed(self.speed)
+        positive = "a positive number of metres"
+        if self.tolerance is not None and _metres("tolerance", self.tolerance, positive) <= 0:
+            raise ConfigError(f"tolerance: expected {positive}, got {self.tolerance!r}.")
+        for name, flag in (("takeoff", self.takeoff), ("land", self.land)):
+            if not (isinstance(flag, bool) or (name == "takeoff" and flag is None)):
+                raise ConfigError(f"{name}: expected True or False, got {flag!r}.")
+
+
+def _metres(name: str, value: Any, expected: str) -> float:
+    """``value`` if it is a finite non-negative number (not a bool), else ConfigError naming ``name``."""
+    if isinstance(value, bool) or not (
+        isinstance(value, (int, float)) and math.isfinite(value) and value >= 0
+    ):
+        raise ConfigError(f"{name}: expected {expected}, got {value!r}.")
+    return float(value)
 
 
 def _checked_speed(speed: Any) -> float:
     """``speed`` (m/s), given or each platform's mean, if it is a non-negative number."""
-    if not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed >= 0):
-        raise ConfigError(f"speed: expected a non-negative number of m/s, got {speed!r}.")
-    return speed
+    return _metres("speed", speed, "a non-negative number of m/s")
 
 
 def platform_plan(result: Any, platform: int, origin: GeoOrigin, flight: _Flight) -> dict[str, Any]:
@@ -243,6 +258,8 @@ def export_qgc_plan(
     list of Path
         The files written, in platform order.
     """
+    if not isinstance(result, PlanResult):
+        raise ConfigError(f"result: expected a PlanResult, got {type(result).__name__}.")
     if check_origin(origin) is None:
         raise ConfigError("origin: a QGroundControl plan needs a geo-referenced mission (an origin).")
     flight = _Flight(altitude, speed, tolerance, acceptance_radius, takeoff, land, firmware, vehicle)
