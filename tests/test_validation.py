@@ -289,6 +289,14 @@ def mutated_radius() -> po.Scenario:
         (lambda: po.io.PlannerSettings(paper="yes"), ConfigError, "paper"),
         (lambda: po.io.PlannerSettings(radius=-1), ConfigError, "radius"),
         (lambda: po.io.PlannerSettings(ordering={"method": "ga", "bogus": 1}), ConfigError, "ordering.bogus"),
+        # Missions built in Python.
+        (lambda: Mission(None), ConfigError, "scenario"),  # type: ignore[arg-type]
+        (lambda: Mission(scenario(), constraints=[1]), ConfigError, "constraints"),  # type: ignore[list-item]
+        (lambda: Mission(scenario(), planner="x"), ConfigError, "planner"),  # type: ignore[arg-type]
+        (lambda: Mission(scenario(), altitude=-1.0), ConfigError, "altitude"),
+        (lambda: Mission(scenario(), origin=(0.0, 0.0)), ConfigError, "origin"),  # type: ignore[arg-type]
+        (lambda: po.io.plan_mission(None), ConfigError, "mission"),  # type: ignore[arg-type]
+        (lambda: save_mission(None, "m.toml"), ConfigError, "mission"),  # type: ignore[arg-type]
     ],
 )
 def test_planners_orderers_and_settings_name_the_field(call: Any, error: type, field: str) -> None:

@@ -44,10 +44,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pmht_opt import validation
 from pmht_opt.anneal import Anneal
 from pmht_opt.constraints.base import Constraint
 from pmht_opt.exceptions import ConfigError, PmhtOptError, ScenarioError
-from pmht_opt.geo import GeoOrigin
+from pmht_opt.geo import GeoOrigin, check_origin
 from pmht_opt.io import fields
 from pmht_opt.io.constraints import read_constraint, write_constraint
 from pmht_opt.io.frame import Frame
@@ -97,9 +98,20 @@ class Mission:
     source: Path | None = None
 
     def __post_init__(self) -> None:
+        if not isinstance(self.scenario, Scenario):
+            raise ConfigError(f"scenario: expected a Scenario, got {type(self.scenario).__name__}.")
+        if isinstance(self.constraints, Constraint) or not isinstance(self.constraints, (tuple, list)):
+            raise ConfigError(f"constraints: expected a sequence of constraints, got {self.constraints!r}.")
         self.constraints = tuple(self.constraints)
         for con in self.constraints:
+            if not isinstance(con, Constraint):
+                raise ConfigError(f"constraints: expected pmht_opt.constraints objects, got {con!r}.")
             con.check_scenario(self.scenario)
+        if not isinstance(self.planner, PlannerSettings):
+            raise ConfigError(f"planner: expected PlannerSettings, got {type(self.planner).__name__}.")
+        check_origin(self.origin)
+        limit = validation.COORDINATE_MAX
+        self.altitude = validation.real("altitude", self.altitude, ConfigError, 0.0, limit)
         self.planner.check_r(self.scenario.r)
 
     @property
@@ -265,10 +277,18 @@ def load_mission(path: str | Path, *, check_schedule: bool = True) -> Mission:
         raise type(err)(f"{path.name}: {err}") from None
 
 
+def check_mission(mission: Any) -> Mission:
+    """``mission`` if it is a :class:`Mission`, else ConfigError naming it."""
+    if not isinstance(mission, Mission):
+        raise ConfigError(f"mission: expected a Mission, got {type(mission).__name__}.")
+    return mission
+
+
 def save_mission(mission: Mission, path: str | Path) -> Path:
     """Write ``mission`` to ``path``, ``.toml`` or ``.json`` by the suffix; :func:`load_mission` reads
     it back to the same mission (geo points to 1e-9 degrees, 0.1 mm)."""
-    path = Path(path)
+    check_mission(mission)
+    path = validation.file_path("path", path)
     suffix = path.suffix.lower()
     data = mission.to_dict()
     if suffix == ".json":

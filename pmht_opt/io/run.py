@@ -12,7 +12,7 @@ import inspect
 from collections.abc import Callable
 
 from pmht_opt.exceptions import ConfigError
-from pmht_opt.io.mission import Mission
+from pmht_opt.io.mission import Mission, check_mission
 from pmht_opt.ordering import TourResult
 from pmht_opt.planner import PMHTConfig, ProgressCallback, plan_pmht
 from pmht_opt.result import PlanResult
@@ -43,7 +43,7 @@ def order_mission(mission: Mission) -> TourResult:
     """
     from pmht_opt.ordering import order_locales
 
-    s = mission.planner
+    s = check_mission(mission).planner
     options = s.ordering_options
     if s.return_to_base:
         if "closed" not in inspect.signature(_orderer(s.method)).parameters:
@@ -109,5 +109,5 @@ def plan_mission(
     snapshots
         EM iterations after which to keep the positions (``PMHTConfig.snapshots``).
     """
-    config = mission.planner.config(mission.constraints_for_plan(), snapshots)
+    config = check_mission(mission).planner.config(mission.constraints_for_plan(), snapshots)
     return PLANNERS[mission.planner.kind](mission, config, callback)
