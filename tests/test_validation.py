@@ -289,6 +289,14 @@ def mutated_radius() -> po.Scenario:
         (lambda: po.io.PlannerSettings(paper="yes"), ConfigError, "paper"),
         (lambda: po.io.PlannerSettings(radius=-1), ConfigError, "radius"),
         (lambda: po.io.PlannerSettings(ordering={"method": "ga", "bogus": 1}), ConfigError, "ordering.bogus"),
+        (
+            lambda: po.TourResult.from_routes(scenario(), [[0, 1, 2]]).validate(min_tour="x"),
+            ConfigError,
+            "min_tour",
+        ),
+        (lambda: po.TourResult.from_routes(scenario(), [[0, 1, 2]]).validate("x"), ConfigError, "scenario"),
+        (lambda: po.TourResult.from_routes(scenario(), [[0, 1, 2]], method=5), ConfigError, "method"),
+        (lambda: po.CvxpyConstraint(lambda v: [], name=5), ConfigError, "CvxpyConstraint.name"),
         # Missions built in Python.
         (lambda: Mission(None), ConfigError, "scenario"),  # type: ignore[arg-type]
         (lambda: Mission(scenario(), constraints=[1]), ConfigError, "constraints"),  # type: ignore[list-item]

@@ -87,7 +87,9 @@ class CvxpyConstraint(Constraint):
         if not callable(fn):
             raise ConfigError(f"CvxpyConstraint: fn must be callable, got {type(fn).__name__}.")
         self.fn = fn
-        self._name = str(name)
+        if not isinstance(name, str) or not name:
+            raise ConfigError(f"CvxpyConstraint.name: expected a non-empty string, got {name!r}.")
+        self._name = name
 
     @property
     def name(self) -> str:

@@ -193,6 +193,8 @@ class TourResult:
         cls, scenario: Scenario, routes: Sequence[Any], method: str = "given", closed: bool = False
     ) -> TourResult:
         """Wrap a user-supplied tour, validating it and computing its distance."""
+        if not isinstance(method, str):
+            raise ConfigError(f"method: expected a name (a string), got {method!r}.")
         checked = check_routes(scenario, routes)
         dist = tour_distance(scenario, checked, closed)
         return cls(checked, dist, np.array([dist]), 0.0, method, scenario, closed=closed)
@@ -242,7 +244,7 @@ class TourResult:
         sc = scenario if scenario is not None else self.scenario
         if sc is None:
             raise ConfigError("scenario: this TourResult holds no scenario; pass one.")
-        return sc
+        return check_scenario(sc)
 
     def validate(self, scenario: Scenario | None = None, min_tour: int = 0) -> None:
         """Check the tour against a scenario without trusting the solver.
@@ -259,6 +261,7 @@ class TourResult:
             A stored distance that disagrees with the recomputation.
         """
         sc = self._scenario(scenario)
+        min_tour = _check_int("min_tour", min_tour, 0)
         recomputed = tour_distance(sc, self.routes, self.closed)
         short = [m for m, r in enumerate(self.routes) if len(r) < min_tour]
         if short:
