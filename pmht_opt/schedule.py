@@ -8,8 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pmht_opt import validation
 from pmht_opt.anneal import Anneal
 from pmht_opt.constraints.base import Constraint
+from pmht_opt.exceptions import ConfigError
 
 
 @dataclass(frozen=True)
@@ -28,6 +30,16 @@ class Schedule:
 
     r: np.ndarray
     settled: int
+
+    def __post_init__(self) -> None:
+        r = validation.real_array("Schedule.r", self.r, ConfigError)
+        if r.ndim != 1 or r.size == 0 or not np.all(np.isfinite(r)) or np.any(r <= 0):
+            raise ConfigError(
+                f"Schedule.r: expected a non-empty 1-D array of positive penalties, got {self.r!r}."
+            )
+        settled = validation.integer("Schedule.settled", self.settled, ConfigError, 1, r.size + 1)
+        object.__setattr__(self, "r", r)
+        object.__setattr__(self, "settled", settled)
 
     @classmethod
     def of(cls, anneal: Anneal, r: float, max_iter: int) -> Schedule:

@@ -276,6 +276,8 @@ def mutated_radius() -> po.Scenario:
         ),
         (lambda: po.EMCallbacks(after_iteration=1), ConfigError, "EMCallbacks.after_iteration"),
         (lambda: po.AnyOf(po.MaxIterations(1)), ConfigError, "AnyOf"),
+        (lambda: po.Schedule(r=np.array([-1.0]), settled=1), ConfigError, "Schedule.r"),
+        (lambda: po.Schedule(r=np.array([1.0]), settled=5), ConfigError, "Schedule.settled"),
         (lambda: po.MotionModel(dt=float("nan")), ScenarioError, "dt"),
         (lambda: po.MotionModel(q=-1.0), ScenarioError, "q"),
         (lambda: scenario().replace(locales=None), ScenarioError, "locales"),
