@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from pmht_opt import validation
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.plotting import (
     AREA_STYLE,
@@ -109,10 +110,10 @@ def animate_iterations(
             return [*paths, *ends, missed, heading]
 
         anim = FuncAnimation(fig, draw, frames=[*frames, *hold], blit=False)
-        out = Path(path)
-        out.parent.mkdir(parents=True, exist_ok=True)
+        out = validation.file_path("path", path)
         fig.tight_layout()
-        anim.save(out, writer=PillowWriter(fps=fps), dpi=dpi)
+        with validation.writing(out) as part:
+            anim.save(part, writer=PillowWriter(fps=fps), dpi=dpi)
     finally:
         plt.close(fig)
     return out

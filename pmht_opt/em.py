@@ -103,12 +103,15 @@ def _initial_log_prior(name: str, prior: Any, shape: tuple[int, int]) -> np.ndar
         raise ScenarioError(f"{name} must have shape {shape}, got {arr.shape}.")
     if not np.all(np.isfinite(arr)) or np.any(arr < 0):
         raise ScenarioError(f"{name} must be finite and non-negative.")
-    # Each row scaled by its largest entry first, so that huge entries cannot overflow the sum.
-    peak = arr.max(axis=1)
-    if np.any(peak <= 0):
-        raise ScenarioError(f"{name} has a locale (row {int(np.argmin(peak))}) with no mass.")
-    scaled = arr / peak[:, None]
-    return safe_log(scaled / scaled.sum(axis=1)[:, None])
+    with np.errstate(over="ignore"):  # an overflowing row is handled below
+        sums = arr.sum(axis=1)
+    if np.any(sums <= 0):
+        raise ScenarioError(f"{name} has a locale (row {int(np.argmin(sums))}) with no mass.")
+    if not np.all(np.isfinite(sums)):
+        # Entries so large that a row's sum overflows: scale each row by its largest entry first.
+        arr = arr / arr.max(axis=1)[:, None]
+        sums = arr.sum(axis=1)
+    return safe_log(arr / sums[:, None])
 
 
 def _initial_paths(scenario: Scenario, paths: Any) -> np.ndarray:

@@ -304,3 +304,11 @@ class PlanResult:
             f"{name}PMHT ({self.solver}), distance {self.total_distance:.1f}, "
             f"coverage@{self.scenario.coverage_radius:g} {self.coverage():.0%}"
         )
+
+
+def check_plan(result: Any) -> PlanResult:
+    """``result`` if it is a :class:`PlanResult`, else :class:`ConfigError` naming it (the exporters'
+    first check)."""
+    if not isinstance(result, PlanResult):
+        raise ConfigError(f"result: expected a PlanResult, got {type(result).__name__}.")
+    return result

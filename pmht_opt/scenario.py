@@ -189,7 +189,7 @@ class Scenario:
         ScenarioError
             Another suffix, or a path that cannot be written.
         """
-        path = Path(path)
+        path = validation.file_path("path", path)
         suffix = path.suffix.lower()
         if suffix == ".json":
             text = json.dumps(self.to_dict(), indent=1, ensure_ascii=False) + "\n"
@@ -199,18 +199,15 @@ class Scenario:
             text = dumps(self.to_dict(), header="pmht-opt scenario")
         else:
             raise ScenarioError(f"Scenario files end in .toml or .json, got {path.name!r}.")
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(text, encoding="utf-8")
-        except OSError as err:
-            raise ScenarioError(f"path: cannot write {str(path)!r}: {err.strerror or err}.") from err
+        with validation.writing(path) as part:
+            part.write_text(text, encoding="utf-8")
         return path
 
     @classmethod
     def load(cls, path: str | Path) -> Scenario:
         """Read a ``.toml`` or ``.json`` scenario file (UTF-8), raising ScenarioError naming what is
         wrong: the file, its encoding or syntax, or the field."""
-        path = Path(path)
+        path = validation.file_path("path", path)
         suffix = path.suffix.lower()
         if suffix not in (".json", ".toml"):
             raise ScenarioError(f"Scenario files end in .toml or .json, got {path.name!r}.")

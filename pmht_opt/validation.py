@@ -250,24 +250,28 @@ def file_path(field: str, path: Any) -> Path:
     return Path(path)
 
 
-def output_file(path: str | Path) -> Path:
-    """``path`` with its missing folders created: every writer of the project treats them alike."""
-    out = file_path("path", path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    return out
-
-
 @contextlib.contextmanager
 def writing(path: Any) -> Iterator[Path]:
-    """The output file ``path`` (missing folders created) for the block that writes it; an ``OSError``
-    on the way (a directory in its place, no permission, a full disk) becomes :class:`ScenarioError`
-    naming the path, as for every other file the project cannot use."""
+    """A file for the block to write ``path`` into, in place of ``path`` once the block has finished.
+
+    Every writer of the project goes through it: missing folders are created; the block writes a
+    temporary file beside ``path`` (same suffix, so a format read from the suffix is the same), which
+    replaces ``path`` only when the block ends without an exception, so an interrupt or an error never
+    leaves a half-written file; an ``OSError`` on the way (a directory in its place, no permission, a
+    full disk) becomes :class:`ScenarioError` naming the path, as for every other file the project
+    cannot use.
+    """
     out = file_path("path", path)
+    part = out.with_name(f".{out.stem}.part-{os.getpid()}{out.suffix}")
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        yield out
+        yield part
+        os.replace(part, out)
     except OSError as err:
         raise ScenarioError(f"path: cannot write {str(out)!r}: {err.strerror or err}.") from None
+    finally:
+        with contextlib.suppress(OSError):  # nothing to remove where nothing could be written
+            part.unlink(missing_ok=True)
 
 
 # ------------------------------------------------------------------ inside a plan

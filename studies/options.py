@@ -1,6 +1,5 @@
-"""Options every study takes (output directory, workers, Dask, resume, verify, tables only), checked once,
-and the
-one way a study of trials runs into its directory.
+"""Options every study takes (output directory, workers, Dask, resume, verify, tables only), checked
+once, and the one way a study of trials runs into its directory.
 
 Each study adds a frozen dataclass of its own options; both kinds validate themselves on construction
 and raise :class:`~pmht_opt.exceptions.ConfigError` naming the command-line option, so a bad input stops
@@ -24,7 +23,7 @@ from typing import Any, Self
 
 from pmht_opt.exceptions import ConfigError
 from studies.executors import check_dask_address, dask_executor, local_executor
-from studies.stored import stored_rows
+from studies.stored import run_provenance, stored_rows
 from studies.trials import Row, TrialTable, run_trials
 
 
@@ -298,13 +297,7 @@ class RunOptions:
         progress bar, resume or afresh); the directory and the rows, in the order of ``trials``."""
         out = self.prepare()
         if self.tables_only:
-            rows, missing = stored_rows(table, trials, out)
-            if missing and not self.quiet:
-                print(
-                    f"--tables-only: {missing} of {missing + len(rows)} trials have no row in "
-                    f"{table.path(out)}; they are left out."
-                )
-            return out, rows
+            return out, stored_rows(table, trials, out)
         with self.executor() as ex:
             rows = run_trials(
                 table,
@@ -326,6 +319,13 @@ class RunOptions:
         # reported by the command, not by an import.
         from studies.report import write_summary
 
+        extra: dict[str, Any] = {}
+        if self.tables_only:
+            header = (
+                f"Written with --tables-only from the stored rows of {table.path(out).name}; the runs "
+                "that measured them are in its run records.\n\n" + header
+            )
+            extra["runs"] = run_provenance(table, out)
         if not self.quiet:
             print(text)
-        return [table.path(out), *write_summary(out, table.name, summary, text, header)]
+        return [table.path(out), *write_summary(out, table.name, summary, text, header, extra)]

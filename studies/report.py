@@ -94,9 +94,17 @@ def write_json(
     return write_text(path, json.dumps(body, indent=1, default=json_default) + "\n")
 
 
-def write_summary(out_dir: Path, name: str, table: Sequence[Any], text: str, header: str = "") -> list[Path]:
-    """Write ``<name>_summary.json`` (the aggregates, with provenance) and ``<name>.md`` (the table)."""
+def write_summary(
+    out_dir: Path,
+    name: str,
+    table: Sequence[Any],
+    text: str,
+    header: str = "",
+    extra: Mapping[str, Any] | None = None,
+) -> list[Path]:
+    """Write ``<name>_summary.json`` (the aggregates, with provenance and ``extra``) and ``<name>.md``
+    (the table)."""
     return [
-        write_json(out_dir / f"{name}_summary.json", {"summary": list(table)}),
+        write_json(out_dir / f"{name}_summary.json", {"summary": list(table), **(extra or {})}),
         write_text(out_dir / f"{name}.md", header + text + "\n"),
     ]

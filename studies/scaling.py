@@ -66,7 +66,7 @@ from studies.scaling_study.summary import (
     summarise_sweeps,
     target,
 )
-from studies.stored import stored_rows
+from studies.stored import run_provenance, stored_rows
 from studies.trials import local_executor, run_trials
 
 __all__ = ["TABLE", "Options", "main", "run", "verify_executor"]
@@ -90,7 +90,7 @@ class _Trials:
         """Run ``trials`` under ``label``; only the first batch may start the file afresh (``--fresh``),
         later ones add to it. With ``tables_only``, the stored rows of ``trials`` instead."""
         if self.tables_only:
-            return stored_rows(TABLE, trials, self.out_dir)[0]
+            return stored_rows(TABLE, trials, self.out_dir)
         ex = verify_executor()
         try:
             return run_trials(
@@ -132,7 +132,8 @@ def run(
     by_backend = {b: summarise_point(select(rows, solver=b)) for b in backends}
     timed = {b: s["wall_s"] for b, s in by_backend.items() if s["runs"]}
     if not timed:
-        raise ConfigError("scaling: every backend failed at the headline size; see scaling.jsonl.")
+        what = "has no stored plan" if tables_only else "failed"
+        raise ConfigError(f"scaling: every backend {what} at the headline size; see scaling.jsonl.")
     fastest = min(timed, key=lambda b: timed[b])
 
     rows = measure(
@@ -164,6 +165,11 @@ def run(
         "sweeps": sweep_out,
         "agreement": agreement_rows(rows),
     }
+    if tables_only:
+        # Written from stored rows: the machine above is the one writing, the runs that measured
+        # the times are these.
+        summary["tables_only"] = True
+        summary["runs"] = run_provenance(TABLE, out_dir)
     return summary, _write(out_dir, summary, progress)
 
 

@@ -9,6 +9,7 @@ figures can be written again from what the results file holds.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,14 +21,13 @@ from studies.store import Row, load, trial_id
 from studies.trials import Check, TrialError, TrialTable, call_trial, public_row
 
 
-def stored_rows(
-    table: TrialTable, trials: Sequence[Mapping[str, Any]], out_dir: str | Path
-) -> tuple[list[Row], int]:
+def stored_rows(table: TrialTable, trials: Sequence[Mapping[str, Any]], out_dir: str | Path) -> list[Row]:
     """The stored rows of ``trials``, in their order, without running any trial or writing anything.
 
     For rewriting a study's summaries and figures from what its results file holds (``--tables-only``):
-    trials with no valid row are left out. Returns the rows and the number of trials left out;
-    :class:`ConfigError` when there is no results file.
+    trials with no valid row are left out, and their number is said on stderr (also under ``--quiet``:
+    a summary of part of the trials must not pass for the whole). :class:`ConfigError` when there is
+    no results file.
     """
     path = table.path(Path(out_dir))
     if not path.exists():
@@ -35,7 +35,20 @@ def stored_rows(
     stored = load(path, table.schema, table.name).rows
     ids = list(dict.fromkeys(trial_id(dict(t)) for t in trials))
     rows = [public_row(stored[k]) for k in ids if k in stored]
-    return rows, len(ids) - len(rows)
+    if len(rows) < len(ids):
+        print(
+            f"--tables-only: {len(ids) - len(rows)} of {len(ids)} trials have no row in {path}; "
+            "they are left out.",
+            file=sys.stderr,
+        )
+    return rows
+
+
+def run_provenance(table: TrialTable, out_dir: str | Path) -> list[dict[str, Any]]:
+    """The provenance of every run recorded in the results file of ``table``, oldest first: what a
+    summary written with ``--tables-only`` was measured by."""
+    path = table.path(Path(out_dir))
+    return [run.get("provenance", {}) for run in load(path, table.schema, table.name).runs]
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,7 @@ def test_scaling_study_quick(tmp_path: Path) -> None:
     again = json.loads((tmp_path / "scaling.json").read_text())
     assert (tmp_path / "scaling.jsonl").read_bytes() == stored
     assert again["headline"] == summary["headline"] and again["sweeps"] == summary["sweeps"]
+    assert again["tables_only"] and again["runs"][0]["commit"] == summary["provenance"]["commit"]
 
 
 def test_one_plan_is_measured_in_process() -> None:

@@ -219,7 +219,11 @@ def mutated_radius() -> po.Scenario:
         ),
         (lambda: po.plan_coverage(scenario(), iterations=10**9), ConfigError, "iterations"),
         (lambda: po.plan_coverage(scenario(), starts=10**6), ConfigError, "starts"),
-        (lambda: po.plan_coverage(scenario(), seed=2**32 - 1, starts=2), ConfigError, "seed"),
+        (
+            lambda: po.plan_coverage(scenario(), seed=2**32 - 1, starts=2, orderer="pyvrp"),
+            ConfigError,
+            "seed",
+        ),
         (lambda: po.plan_coverage(two_platforms().replace(locales=[[1.0, 1.0]])), ConfigError, "scenario"),
         (lambda: po.plan_coverage(mutated_radius()), ConfigError, "scenario.coverage_radius"),
         (lambda: po.order_locales(scenario(), "ortools", time_limit=1e300), ConfigError, "time_limit"),
@@ -648,3 +652,32 @@ def test_contradictory_cvxpy_constraints_are_infeasible_not_a_solver_failure() -
     both = po.CvxpyConstraint(lambda v: [v.positions[0][0, 0] >= 1, v.positions[0][0, 0] <= 0], name="both")
     with pytest.raises(po.InfeasibleError, match="the constraints both cannot all be met"):
         po.plan_pmht(sc, po.PMHTConfig(constraints=[both]))
+
+
+def test_a_mission_files_altitude_is_checked_when_it_is_read(tmp_path: Path) -> None:
+    path = tmp_path / "m.toml"
+    path.write_text(
+        "locales = [[1.0, 1.0]]\nstarts = [[0.0, 0.0]]\n[geo]\norigin = [47.0, 8.0]\naltitude = -5.0\n"
+    )
+    with pytest.raises(ScenarioError, match=r"geo\.altitude: expected metres above the take-off point"):
+        load_mission(path)
+
+
+def test_plan_coverage_takes_any_seed_where_the_orderer_does() -> None:
+    sc = po.Scenario(locales=LOCALES, starts=[[0.0, 0.0]], horizon=30)
+    res = po.plan_coverage(sc, 0.3, seed=2**40, orderer="ga", starts=1, rounds=0, keep=1)
+    assert res.coverage(0.3) == 1.0
+
+
+def test_a_write_that_fails_leaves_neither_the_file_nor_a_part(tmp_path: Path) -> None:
+    target = tmp_path / "sub" / "plan.csv"
+    target.parent.mkdir()
+    target.write_text("the previous plan\n")
+    with pytest.raises(KeyboardInterrupt), validation.writing(target) as part:
+        part.write_text("half a pl")
+        raise KeyboardInterrupt
+    assert target.read_text() == "the previous plan\n"  # untouched, not half-written
+    assert [p.name for p in target.parent.iterdir()] == ["plan.csv"]
+    with validation.writing(target) as part:
+        part.write_text("the new plan\n")
+    assert target.read_text() == "the new plan\n" and len(list(target.parent.iterdir())) == 1

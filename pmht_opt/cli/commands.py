@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from pmht_opt.cli.outputs import Outputs, check_output, figure_formats, prepared
+from pmht_opt.cli.outputs import Outputs, check_output, figure_formats, write_text
 from pmht_opt.cli.settings import mission_of, planner_settings
 from pmht_opt.exceptions import ConfigError, MissingDependencyError
 from pmht_opt.io import EXAMPLES, Mission, example_path, order_mission, plan_mission
@@ -137,9 +137,9 @@ def order(args: argparse.Namespace) -> int:
     for m, route in enumerate(tour.routes):
         print(f"platform {m}      {len(route)} locales: {' '.join(str(int(n)) for n in route)}")
     if figure is not None:
-        print(f"figure: {tour.plot(prepared(figure), sc)}")
+        print(f"figure: {tour.plot(figure, sc)}")
     if js is not None:
-        prepared(js).write_text(json.dumps(tour.to_dict()) + "\n")
+        write_text(js, json.dumps(tour.to_dict()) + "\n")
         print(f"tour: {js}")
     return 0
 
@@ -165,7 +165,7 @@ def example(args: argparse.Namespace) -> int:
 def scenario(args: argparse.Namespace) -> int:
     """``pmht-opt scenario``: one of the paper's scenarios to a file."""
     sc = paper_scenario(args.kind, seed=args.seed)
-    path = sc.save(prepared(check_output("--out", args.out, {".toml", ".json"}, "scenario")))
+    path = sc.save(check_output("--out", args.out, {".toml", ".json"}, "scenario"))
     print(f"scenario {sc.name}: {path}")
     return 0
 

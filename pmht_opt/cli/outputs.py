@@ -17,6 +17,7 @@ from pathlib import Path
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.io import Mission, export_csv, export_geojson, export_qgc_plan, qgc_paths
 from pmht_opt.result import PlanResult
+from pmht_opt.validation import writing
 
 #: Export formats by file suffix.
 EXPORTS = {".csv": "CSV", ".geojson": "GeoJSON", ".plan": "QGroundControl plan"}
@@ -61,9 +62,10 @@ def check_output(option: str, path: Path, suffixes: set[str] | dict[str, str], w
     return path
 
 
-def prepared(path: Path) -> Path:
-    """``path``, with its missing folders created."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+def write_text(path: Path, text: str) -> Path:
+    """Write ``text`` to ``path`` whole or not at all (:func:`pmht_opt.validation.writing`)."""
+    with writing(path) as part:
+        part.write_text(text, encoding="utf-8")
     return path
 
 
@@ -106,12 +108,12 @@ class Outputs:
 
         unit = " (m)" if mission.origin is not None else ""
         if self.figure is not None:
-            path = plot_result(result, prepared(self.figure), show_radius=args.show_radius, unit=unit)
+            path = plot_result(result, self.figure, show_radius=args.show_radius, unit=unit)
             print(f"figure: {path}")
         if self.animation is not None:
             from pmht_opt.animation import animate_plan
 
-            print(f"animation: {animate_plan(result, prepared(self.animation), unit=unit)}")
+            print(f"animation: {animate_plan(result, self.animation, unit=unit)}")
         if self.json is not None:
             payload = {
                 "scenario": result.scenario.name,
@@ -120,7 +122,7 @@ class Outputs:
                 "assignment": result.assignment.tolist(),
                 "visit_time": result.visit_time.tolist(),
             }
-            prepared(self.json).write_text(json.dumps(payload) + "\n")
+            write_text(self.json, json.dumps(payload) + "\n")
             print(f"metrics and paths: {self.json}")
         for path in self.exports:
             for file in _export(result, mission, path, args):
@@ -131,13 +133,13 @@ def _export(result: PlanResult, mission: Mission, path: Path, args: argparse.Nam
     """Export ``result`` to ``path`` in the format its suffix names; the files written."""
     suffix = path.suffix.lower()
     if suffix == ".csv":
-        return [export_csv(result, prepared(path), mission.origin)]
+        return [export_csv(result, path, mission.origin)]
     if suffix == ".geojson":
-        return [export_geojson(result, prepared(path), mission.origin)]
+        return [export_geojson(result, path, mission.origin)]
     assert mission.origin is not None
     return export_qgc_plan(
         result,
-        prepared(path),
+        path,
         mission.origin,
         altitude=args.altitude if args.altitude is not None else mission.altitude,
         speed=args.speed,

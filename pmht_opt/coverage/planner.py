@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numbers
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -10,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from pmht_opt import validation
 from pmht_opt.constraints.params import positive_number
 from pmht_opt.constraints.visits import VisitAll
 from pmht_opt.coverage.search import Candidate, resolve_orderer, search, variants
@@ -51,14 +51,11 @@ class CoverageProgress:
 
 #: Most tours (``starts``), rounds, beam and kept candidates a run may ask for: each is a full
 #: ordering or smoothing, seconds apiece.
-COUNT_MAX = 10_000
+SEARCH_MAX = 10_000
 
 
-def _count(name: str, value: Any, minimum: int, maximum: int = COUNT_MAX) -> int:
-    integral = isinstance(value, numbers.Integral) and not isinstance(value, bool)
-    if not integral or not minimum <= int(value) <= maximum:
-        raise ConfigError(f"{name}: expected an integer in {minimum}..{maximum}, got {value!r}.")
-    return int(value)
+def _count(name: str, value: Any, minimum: int, maximum: int | None = SEARCH_MAX) -> int:
+    return validation.integer(name, value, ConfigError, minimum, maximum)
 
 
 @dataclass(frozen=True)
@@ -102,12 +99,14 @@ def _settings(scenario: Any, radius: Any, config: Any, opts: dict[str, Any]) -> 
     if opts["callback"] is not None and not callable(opts["callback"]):
         raise ConfigError(f"callback: expected a callable, got {type(opts['callback']).__name__}.")
     starts = _count("starts", opts["starts"], 1)
+    orderer = resolve_orderer(opts["orderer"])
+    # The tours use seeds seed .. seed + starts - 1; PyVRP takes seeds up to SEED_MAX.
+    top = SEED_MAX - (starts - 1) if orderer == "pyvrp" else None
     return _Settings(
         radius=rho,
         config=cfg,
-        # The tours use seeds seed .. seed + starts - 1, each within the orderers' seed range.
-        seed=_count("seed", opts["seed"], 0, SEED_MAX - (starts - 1)),
-        orderer=resolve_orderer(opts["orderer"]),
+        seed=_count("seed", opts["seed"], 0, top),
+        orderer=orderer,
         starts=starts,
         rounds=_count("rounds", opts["rounds"], 0),
         beam=_count("beam", opts["beam"], 1),

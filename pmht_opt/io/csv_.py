@@ -18,6 +18,7 @@ import numpy as np
 from pmht_opt.exceptions import ScenarioError
 from pmht_opt.geo import GeoOrigin, check_origin
 from pmht_opt.model import AX, AY, PX, PY, STATE_DIM, VX, VY
+from pmht_opt.result import check_plan
 from pmht_opt.validation import file_path, writing
 
 #: The columns of a plan's CSV (``lat`` and ``lon`` follow with an origin).
@@ -34,11 +35,12 @@ def export_csv(result: Any, path: str | Path, origin: GeoOrigin | None = None) -
         ``path``.
     """
     origin = check_origin(origin)
-    states = np.asarray(result.states)
+    states = np.asarray(check_plan(result).states)
     M, T1, _ = states.shape
     dt = float(result.scenario.dt)
     latlon = origin.plane.to_geodetic(states[:, :, [PX, PY]]) if origin is not None else None
-    with writing(path) as path, path.open("w", newline="") as fh:
+    out = file_path("path", path)
+    with writing(out) as part, part.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow([*COLUMNS, *(("lat", "lon") if latlon is not None else ())])
         for m in range(M):
@@ -48,7 +50,7 @@ def export_csv(result: Any, path: str | Path, origin: GeoOrigin | None = None) -
                 if latlon is not None:
                     row += [repr(float(latlon[m, t, 0])), repr(float(latlon[m, t, 1]))]
                 w.writerow(row)
-    return path
+    return out
 
 
 def read_plan_csv(path: str | Path) -> np.ndarray:

@@ -28,6 +28,7 @@ import numpy as np
 from pmht_opt.exceptions import ScenarioError
 from pmht_opt.geo import GeoOrigin, check_origin
 from pmht_opt.io.frame import GEO_DECIMALS
+from pmht_opt.result import check_plan
 from pmht_opt.validation import file_path, writing
 
 #: Every feature's ``kind`` property.
@@ -113,10 +114,10 @@ def _flat(geometry: dict[str, Any]) -> list[list[float]]:
 
 def export_geojson(result: Any, path: str | Path, origin: GeoOrigin | None = None) -> Path:
     """Write the plan ``result`` to ``path`` as GeoJSON (module notes); returns ``path``."""
-    text = json.dumps(plan_geojson(result, check_origin(origin))) + "\n"
-    with writing(path) as path:
-        path.write_text(text, encoding="utf-8")
-    return path
+    text = json.dumps(plan_geojson(check_plan(result), check_origin(origin))) + "\n"
+    with writing(path) as part:
+        part.write_text(text, encoding="utf-8")
+    return file_path("path", path)
 
 
 def read_geojson_paths(path: str | Path, origin: GeoOrigin | None = None) -> list[np.ndarray]:

@@ -200,6 +200,11 @@ def _read_geo(data: Any) -> tuple[GeoOrigin, float]:
     if len(origin) != 2:
         raise ScenarioError(f"geo.origin: expected [lat, lon], got {len(origin)} values.")
     altitude = fields.number("geo.altitude", table.get("altitude", DEFAULT_ALTITUDE))
+    if not 0.0 <= altitude <= validation.COORDINATE_MAX:
+        raise ScenarioError(
+            f"geo.altitude: expected metres above the take-off point in [0, {validation.COORDINATE_MAX:g}], "
+            f"got {altitude:g}."
+        )
     try:
         return GeoOrigin(origin[0], origin[1]), altitude
     except ScenarioError as err:

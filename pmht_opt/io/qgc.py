@@ -33,11 +33,12 @@ from typing import Any
 
 import numpy as np
 
+from pmht_opt import validation
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.geo import GeoOrigin, check_origin
 from pmht_opt.geometry import point_polyline_distance
 from pmht_opt.io.frame import GEO_DECIMALS
-from pmht_opt.result import PlanResult
+from pmht_opt.result import check_plan
 from pmht_opt.validation import file_path, writing
 
 #: MAVLink commands used.
@@ -121,29 +122,19 @@ class _Flight:
         if not isinstance(self.vehicle, str) or self.vehicle not in VEHICLES:
             raise ConfigError(f"vehicle: expected one of {', '.join(VEHICLES)}, got {self.vehicle!r}.")
         for name, value in (("altitude", self.altitude), ("acceptance_radius", self.acceptance_radius)):
-            _metres(name, value, "a non-negative number of metres")
+            validation.real(name, value, ConfigError, 0.0)
         if self.speed is not None:
             _checked_speed(self.speed)
-        positive = "a positive number of metres"
-        if self.tolerance is not None and _metres("tolerance", self.tolerance, positive) <= 0:
-            raise ConfigError(f"tolerance: expected {positive}, got {self.tolerance!r}.")
+        if self.tolerance is not None:
+            validation.real("tolerance", self.tolerance, ConfigError, 0.0, lo_open=True)
         for name, flag in (("takeoff", self.takeoff), ("land", self.land)):
-            if not (isinstance(flag, bool) or (name == "takeoff" and flag is None)):
+            if not (isinstance(flag, (bool, np.bool_)) or (name == "takeoff" and flag is None)):
                 raise ConfigError(f"{name}: expected True or False, got {flag!r}.")
-
-
-def _metres(name: str, value: Any, expected: str) -> float:
-    """``value`` if it is a finite non-negative number (not a bool), else ConfigError naming ``name``."""
-    if isinstance(value, bool) or not (
-        isinstance(value, (int, float)) and math.isfinite(value) and value >= 0
-    ):
-        raise ConfigError(f"{name}: expected {expected}, got {value!r}.")
-    return float(value)
 
 
 def _checked_speed(speed: Any) -> float:
     """``speed`` (m/s), given or each platform's mean, if it is a non-negative number."""
-    return _metres("speed", speed, "a non-negative number of m/s")
+    return validation.real("speed", speed, ConfigError, 0.0)
 
 
 def platform_plan(result: Any, platform: int, origin: GeoOrigin, flight: _Flight) -> dict[str, Any]:
@@ -209,7 +200,7 @@ def _items(latlon: np.ndarray, speed: float, takeoff: bool, flight: _Flight) -> 
 def qgc_paths(path: str | Path, n_platforms: int) -> list[Path]:
     """The files :func:`export_qgc_plan` writes for ``path``: ``NAME-0.plan``, ``NAME-1.plan``, ...
     (one per platform, numbered from 0 as in the library)."""
-    path = Path(path)
+    path = file_path("path", path)
     return [path.with_name(f"{path.stem}-{m}{path.suffix or '.plan'}") for m in range(n_platforms)]
 
 
@@ -258,18 +249,17 @@ def export_qgc_plan(
     list of Path
         The files written, in platform order.
     """
-    if not isinstance(result, PlanResult):
-        raise ConfigError(f"result: expected a PlanResult, got {type(result).__name__}.")
+    check_plan(result)
     if check_origin(origin) is None:
         raise ConfigError("origin: a QGroundControl plan needs a geo-referenced mission (an origin).")
     flight = _Flight(altitude, speed, tolerance, acceptance_radius, takeoff, land, firmware, vehicle)
-    out = []
-    for m, file in enumerate(qgc_paths(path, result.scenario.n_platforms)):
-        plan = platform_plan(result, m, origin, flight)
+    files = qgc_paths(path, result.scenario.n_platforms)
+    # Every platform's plan first: a refusal (a tolerance, a speed) leaves no file behind.
+    plans = [platform_plan(result, m, origin, flight) for m in range(len(files))]
+    for file, plan in zip(files, plans, strict=True):
         with writing(file) as out_file:
             out_file.write_text(json.dumps(plan, indent=2) + "\n", encoding="utf-8")
-        out.append(file)
-    return out
+    return list(files)
 
 
 def read_qgc_plan(path: str | Path) -> dict[str, Any]:

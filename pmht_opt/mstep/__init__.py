@@ -89,19 +89,11 @@ def solve_mstep(
     W = _weights("W", W, (T, M), nonneg=True)
     WZ = _weights("WZ", WZ, (T, M, 2), nonneg=False)
     r = validation.real("r", r, ConfigError, *validation.R_RANGE)
-    if isinstance(constraints, Constraint) or not isinstance(constraints, (Sequence, set, frozenset)):
-        raise ConfigError(f"constraints: expected a sequence of constraints, got {constraints!r}.")
+    cons = _constraints(scenario, constraints)
     if not isinstance(accept_inaccurate, (bool, np.bool_)):
         raise ConfigError(f"accept_inaccurate: expected True or False, got {accept_inaccurate!r}.")
     settings = {} if settings is None else settings
     validation.solver_settings("settings", settings)
-    cons = tuple(constraints)
-    for con in cons:
-        if not isinstance(con, Constraint):
-            raise ConfigError(
-                f"constraints: expected pmht_opt.constraints objects, got {type(con).__name__}."
-            )
-        con.check_scenario(scenario)
     if paths is None:
         states = np.repeat(scenario.initial_states[:, None, :], T + 1, axis=1)
     else:
@@ -113,6 +105,20 @@ def solve_mstep(
     finally:
         mstep.close()
     return out.states
+
+
+def _constraints(scenario: Scenario, constraints: Any) -> tuple[Constraint, ...]:
+    """``constraints`` as a tuple of constraints that fit ``scenario``, or ConfigError naming them."""
+    if isinstance(constraints, Constraint) or not isinstance(constraints, (Sequence, set, frozenset)):
+        raise ConfigError(f"constraints: expected a sequence of constraints, got {constraints!r}.")
+    cons = tuple(constraints)
+    for con in cons:
+        if not isinstance(con, Constraint):
+            raise ConfigError(
+                f"constraints: expected pmht_opt.constraints objects, got {type(con).__name__}."
+            )
+        con.check_scenario(scenario)
+    return cons
 
 
 __all__ = [

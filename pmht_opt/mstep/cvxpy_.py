@@ -25,6 +25,9 @@ from pmht_opt.mstep.formulation import QPLayout, dynamics_rows
 from pmht_opt.mstep.qp import check_solution
 from pmht_opt.mstep.rows import RowBuilder, assemble, soften_cvxpy
 
+#: Statuses of a solve stopped by a limit of the caller's, not by the problem.
+_LIMITS = frozenset({solvers.Status.MAX_ITER, solvers.Status.TIME_LIMIT, solvers.Status.INTERRUPTED})
+
 
 class JointCvxpyMStep(MStep):
     """Every platform's M-step QP in one cvxpy problem, with the native cvxpy constraints on top.
@@ -116,7 +119,11 @@ class JointCvxpyMStep(MStep):
         except solvers.QPError as err:
             raise SolverError(f"cannot set up the M-step problem: {err}") from err
         sol = session.solve()
-        verdict = sol if sol.status in solvers.INFEASIBLE or sol.ok else self._probe(problem)
+        # A solver that fails without a limit (a numerical error, an inaccurate answer the caller does not
+        # accept) may be facing contradictory constraints: the probe tells. Iteration or time limits are
+        # the caller's and are reported as they are.
+        failed = not sol.usable(self.accept_inaccurate) and sol.status not in _LIMITS
+        verdict = self._probe(problem) if failed and sol.status not in solvers.INFEASIBLE else sol
         if verdict is not None and verdict.status in solvers.INFEASIBLE and self.constraints:
             names = sorted({c.name for c in self.constraints if not c.soft})
             raise InfeasibleError(

@@ -79,25 +79,24 @@ def plot_paths(
         draw_paths(
             ax, scenario, positions, title=title, assignment=assignment, constraints=constraints, **options
         )
-        out = figure_path(path, fig)
-        with writing(out):
-            fig.savefig(out, dpi=120, bbox_inches="tight")
+        out = figure_path(path)
+        with writing(out) as part:
+            fig.savefig(part, dpi=120, bbox_inches="tight")
     finally:
         plt.close(fig)
     return out
 
 
-def figure_path(path: Any, fig: Any) -> Path:
+def figure_path(path: Any) -> Path:
     """The file a figure goes to: ``path``, with ``.png`` added when it has no suffix (what matplotlib
     writes then); ConfigError naming ``path`` for a format matplotlib cannot write."""
     out = file_path("path", path)
     if not out.suffix:
         out = out.with_name(out.name + ".png")
-    formats = fig.canvas.get_supported_filetypes()
-    if out.suffix[1:].lower() not in formats:
+    formats = figure_formats()
+    if out.suffix.lower() not in formats:
         raise ConfigError(
-            f"path: matplotlib cannot write {out.suffix!r} figures; use one of "
-            f"{', '.join('.' + f for f in sorted(formats))}."
+            f"path: matplotlib cannot write {out.suffix!r} figures; use one of {', '.join(sorted(formats))}."
         )
     return out
 
