@@ -24,6 +24,11 @@ def test_scaling_study_quick(tmp_path: Path) -> None:
     assert summary["headline"]["auto"]["runs"] == 1 and summary["headline"]["off"]["runs"] == 1
     assert all(a["assignment_equal"] for a in summary["agreement"])
     assert "## Gated against dense" in (tmp_path / "scaling.md").read_text()
+    scale = summary["scale"]
+    assert scale["size"] == [120, 100, 4] and scale["runs"] == 1 and not scale["errors"]
+    assert 0 < scale["estep_gated_calls"] <= scale["estep_calls"]  # plain EM gates from the start
+    assert scale["target"]["met"] is None  # not the target's size
+    assert "## Scale point N = 120" in (tmp_path / "scaling.md").read_text()
     assert cli_main(["study", "scaling", "--quick", "--reps", "0", "--out", str(tmp_path), "--quiet"]) == 2
     # The summary again from the stored plans, none run: the same summary, the table untouched.
     stored = (tmp_path / "scaling.jsonl").read_bytes()
@@ -32,6 +37,7 @@ def test_scaling_study_quick(tmp_path: Path) -> None:
     again = json.loads((tmp_path / "scaling.json").read_text())
     assert (tmp_path / "scaling.jsonl").read_bytes() == stored
     assert again["headline"] == summary["headline"] and again["sweeps"] == summary["sweeps"]
+    assert again["scale"] == summary["scale"]
     assert again["tables_only"] and again["runs"][0]["commit"] == summary["provenance"]["commit"]
 
 

@@ -17,6 +17,9 @@ from pmht_opt import Scenario
 #: The target at the headline size of the full study (gated E-step).
 TARGET_SECONDS = 60.0
 TARGET_GIB = 4.0
+#: The target at the scale point of the full study (N = 5000, T = 5000, M = 20; gated, plain EM).
+SCALE_SECONDS = 60.0
+SCALE_GIB = 8.0
 #: E-step modes compared: ``estep_gate`` "auto" (gated) and off (dense).
 GATES = ("auto", "off")
 
@@ -32,6 +35,10 @@ class Design:
     m_values: tuple[int, ...]
     iterations: int
     reps: int
+    #: The largest size, planned once with plain EM (``anneal=None``) and the gated E-step: the
+    #: default annealed EM's first E-steps at a large ``r`` gate almost nothing, and at this size a
+    #: dense E-step holds ``N x T x M`` weights at once.
+    scale: tuple[int, int, int]
 
     def sweep_points(self) -> dict[str, list[tuple[int, int, int]]]:
         """``(N, T, M)`` of each sweep; all pass through the centre."""
@@ -51,6 +58,7 @@ FULL = Design(
     m_values=(1, 2, 5, 10),
     iterations=100,
     reps=3,
+    scale=(5000, 5000, 20),
 )
 QUICK = Design(
     headline=(60, 80, 3),
@@ -60,6 +68,7 @@ QUICK = Design(
     m_values=(1, 2),
     iterations=8,
     reps=1,
+    scale=(120, 100, 4),
 )
 
 

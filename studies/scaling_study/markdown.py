@@ -186,10 +186,38 @@ def agreement_section(summary: Summary) -> list[str]:
     return lines
 
 
+def scale_section(summary: Summary) -> list[str]:
+    """The scale point's plan (plain EM, gated) and the target's verdict."""
+    s = summary["scale"]
+    n, t, m = s["size"]
+    tgt = s["target"]
+    verdict = {True: "met", False: "NOT met", None: "not measured (not the target's size)"}[tgt["met"]]
+    lines = [
+        "",
+        f"## Scale point N = {n}, T = {t}, M = {m} ({summary['fastest']}, plain EM, gated E-step)",
+        "",
+        *_header(["runs", "wall (s)", "E-step (s)", "E-steps gated", "M-step (s)", "peak RSS (MiB)"]),
+        _row(
+            [
+                s["runs"],
+                fmt(s["wall_s"]),
+                fmt(s["estep_s"]),
+                f"{fmt(s['estep_gated_calls'])} of {fmt(s['estep_calls'])}",
+                fmt(s["mstep_s"]),
+                fmt(s["peak_rss_mib"]),
+            ]
+        ),
+        "",
+        f"Target: <= {tgt['seconds']:g} s and <= {tgt['gib']:g} GiB: {verdict}.",
+    ]
+    return lines + [f"Failed: {e}" for e in s["errors"]]
+
+
 def markdown(summary: Summary) -> str:
     """The summary as markdown tables."""
     lines = backends_section(summary)
     lines += headline_section(summary)
     lines += sweeps_section(summary)
     lines += agreement_section(summary)
+    lines += scale_section(summary)
     return "\n".join(lines)

@@ -35,9 +35,13 @@ def rss_mib() -> float:
     return float(peak) / (1024.0 * 1024.0 if platform.system() == "Darwin" else 1024.0)
 
 
-def config(solver: str, gate: str, iterations: int) -> PMHTConfig:
-    """The default planner configuration with ``iterations`` iterations, gated (``"auto"``) or dense."""
-    return PMHTConfig(solver=solver, max_iter=iterations, estep_gate=None if gate == "off" else "auto")
+def config(solver: str, gate: str, iterations: int, plain: bool = False) -> PMHTConfig:
+    """The default planner configuration with ``iterations`` iterations, gated (``"auto"``) or dense;
+    ``plain`` starts at the scenario's ``r`` (no annealing)."""
+    gate_opt = None if gate == "off" else "auto"
+    if plain:
+        return PMHTConfig(solver=solver, max_iter=iterations, estep_gate=gate_opt, anneal=None)
+    return PMHTConfig(solver=solver, max_iter=iterations, estep_gate=gate_opt)
 
 
 def trial(
@@ -51,25 +55,26 @@ def trial(
     seed: int,
     rep: int,
 ) -> dict[str, Any]:
-    """One child's work: ``task="time"`` times one plan, ``task="agree"`` compares gated and dense.
+    """One child's work: ``task="time"`` times one plan, ``task="scale"`` one plan of plain EM
+    (:attr:`~studies.scaling_study.design.Design.scale`), ``task="agree"`` compares gated and dense.
 
     ``rep`` only tells repeats of the same plan apart.
     """
     sc = scaling_scenario(n_locales, horizon, n_platforms, seed)
-    if task == "time":
-        return time_plan(sc, solver, gate, iterations)
+    if task in ("time", "scale"):
+        return time_plan(sc, solver, gate, iterations, plain=task == "scale")
     if task == "agree":
         return agreement(sc, solver, iterations)
     raise ConfigError(f"scaling: unknown task {task!r}.")
 
 
-def time_plan(sc: Scenario, solver: str, gate: str, iterations: int) -> dict[str, Any]:
+def time_plan(sc: Scenario, solver: str, gate: str, iterations: int, plain: bool = False) -> dict[str, Any]:
     """Wall time, E- and M-step time, gated E-steps and peak memory of one plan of ``sc``.
 
     ``estep_settled_s`` is the E-step time from the end of annealing on, where gating pays most
     (``r`` is at its sharpest).
     """
-    cfg = config(solver, gate, iterations)
+    cfg = config(solver, gate, iterations, plain)
     base = rss_mib()
     started = time.perf_counter()
     res = plan_pmht(sc, cfg)

@@ -58,9 +58,13 @@ def plot(summary: Mapping[str, Any], path: Path) -> Path:
         _sweep_column(axes, col, axis, entry)
     h = summary["headline"]["auto"]
     n, t, m = summary["design"]["headline"]
+    s = summary["scale"]
+    ns, ts, ms = s["size"]
     fig.suptitle(
         f"Scaling ({summary['fastest']}, {summary['design']['iterations']} iterations); "
-        f"headline N={n}, T={t}, M={m}: {fmt(h['wall_s'])} s, {fmt(h['peak_rss_mib'], 4)} MiB peak (gated)"
+        f"headline N={n}, T={t}, M={m}: {fmt(h['wall_s'])} s, {fmt(h['peak_rss_mib'], 4)} MiB peak (gated)\n"
+        f"scale point N={ns}, T={ts}, M={ms} (plain EM, gated): {fmt(s['wall_s'])} s, "
+        f"{fmt(s['peak_rss_mib'], 4)} MiB peak"
     )
     fig.tight_layout()
     fig.savefig(path, dpi=110)

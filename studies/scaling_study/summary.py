@@ -15,7 +15,15 @@ import numpy as np
 
 from studies.provenance import load_average
 from studies.report import median
-from studies.scaling_study.design import FULL, GATES, TARGET_GIB, TARGET_SECONDS, Design
+from studies.scaling_study.design import (
+    FULL,
+    GATES,
+    SCALE_GIB,
+    SCALE_SECONDS,
+    TARGET_GIB,
+    TARGET_SECONDS,
+    Design,
+)
 
 Rows = Sequence[Mapping[str, Any]]
 
@@ -103,11 +111,28 @@ def target(design: Design, headline: Mapping[str, Any]) -> dict[str, Any]:
     return {"seconds": TARGET_SECONDS, "gib": TARGET_GIB, "met": met}
 
 
+def scale_point(design: Design, rows: Rows) -> dict[str, Any]:
+    """The scale point's plan (:attr:`Design.scale`) and its verdict against :data:`SCALE_SECONDS` and
+    :data:`SCALE_GIB`; ``met`` is ``None`` unless it is the full study's point, or without a plan."""
+    stats = summarise_point(ok(rows))
+    met = None
+    if design.scale == FULL.scale and design.iterations == FULL.iterations and stats["runs"]:
+        met = bool(stats["wall_s"] <= SCALE_SECONDS and stats["peak_rss_mib"] <= SCALE_GIB * 1024)
+    errors = [str(r.get("error")) for r in rows if r.get("error")]
+    return {
+        "size": list(design.scale),
+        **stats,
+        "errors": errors,
+        "target": {"seconds": SCALE_SECONDS, "gib": SCALE_GIB, "met": met},
+    }
+
+
 def design_info(design: Design, seed: int) -> dict[str, Any]:
     """The sizes, iterations, repeats, seed and planner configuration of a run, for its summary."""
     return {
         "headline": list(design.headline),
         "centre": list(design.centre),
+        "scale": list(design.scale),
         "iterations": design.iterations,
         "reps": design.reps,
         "seed": seed,
