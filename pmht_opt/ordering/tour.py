@@ -18,7 +18,6 @@ can be checked without trusting the solver that made it.
 
 from __future__ import annotations
 
-import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +27,7 @@ import numpy as np
 
 from pmht_opt.exceptions import ConfigError, SolverError
 from pmht_opt.scenario import Scenario
+from pmht_opt.validation import integer
 
 #: Relative tolerance of :meth:`TourResult.validate` on the stored total distance.
 DISTANCE_RTOL = 1e-9
@@ -261,7 +261,7 @@ class TourResult:
             A stored distance that disagrees with the recomputation.
         """
         sc = self._scenario(scenario)
-        min_tour = _check_int("min_tour", min_tour, 0)
+        min_tour = integer("min_tour", min_tour, ConfigError, 0)
         recomputed = tour_distance(sc, self.routes, self.closed)
         short = [m for m, r in enumerate(self.routes) if len(r) < min_tour]
         if short:
@@ -299,19 +299,9 @@ class TourResult:
 COUNT_MAX = 10_000_000
 
 
-def _check_int(name: str, value: Any, minimum: int, maximum: int | None = None) -> int:
-    """An integer parameter in ``minimum..maximum`` or ConfigError naming it."""
-    expected = f"an integer >= {minimum}" if maximum is None else f"an integer in {minimum}..{maximum}"
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise ConfigError(f"{name}: expected {expected}, got {value!r}.")
-    if int(value) < minimum or (maximum is not None and int(value) > maximum):
-        raise ConfigError(f"{name}: expected {expected}, got {int(value)}.")
-    return int(value)
-
-
 def check_count(name: str, value: Any) -> int:
     """An iteration count or limit of an orderer: an integer in ``1..COUNT_MAX``, or ConfigError."""
-    return _check_int(name, value, 1, COUNT_MAX)
+    return integer(name, value, ConfigError, 1, COUNT_MAX)
 
 
 def check_scenario(scenario: Any) -> Scenario:
@@ -324,7 +314,7 @@ def check_scenario(scenario: Any) -> Scenario:
 def check_min_tour(scenario: Scenario, min_tour: Any) -> int:
     """``min_tour`` as an int, checked against the scenario (``min_tour * M <= N``)."""
     check_scenario(scenario)
-    value = _check_int("min_tour", min_tour, 1)
+    value = integer("min_tour", min_tour, ConfigError, 1)
     M, N = scenario.n_platforms, scenario.n_locales
     if N < M:
         raise ConfigError(

@@ -37,13 +37,13 @@ from pmht_opt.ordering.ga.restart import NoRestart, RestartPolicy, StallRestart
 from pmht_opt.ordering.tour import (
     TourResult,
     _check_closed,
-    _check_int,
     check_count,
     check_min_tour,
     tour_distance,
 )
 from pmht_opt.scenario import Scenario
 from pmht_opt.stopping import AnyOf, MaxIterations, Progress, StoppingCriterion, iteration_limit
+from pmht_opt.validation import integer
 
 Callback = Callable[[int, float], Any]
 
@@ -95,7 +95,7 @@ class GAParams:
         if self.iterations is not None:
             iterations = check_count("iterations", self.iterations)
             object.__setattr__(self, "iterations", iterations)
-        object.__setattr__(self, "min_tour", _check_int("min_tour", self.min_tour, 1))
+        object.__setattr__(self, "min_tour", integer("min_tour", self.min_tour, ConfigError, 1))
         if self.restart is not None and not isinstance(self.restart, RestartPolicy):
             raise ConfigError(
                 f"restart: expected a restart policy (e.g. StallRestart(), NoRestart()) or None, "
