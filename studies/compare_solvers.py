@@ -1,7 +1,7 @@
 """Study 2: the M-step backends against each other (``pmht-opt study solvers``).
 
-Three parts, every backend (``kalman``, ``clarabel``, ``osqp``, and ``cvxpy`` with each installed cvxpy
-solver) on the same problems:
+Three parts, every backend (``kalman``, ``banded``, ``clarabel``, ``osqp``, and ``cvxpy`` with each
+installed cvxpy solver) on the same problems:
 
 Unconstrained single M-steps
     The E-step weights of a real EM run: the default (annealed) plan of paper scenarios A, B, C with
@@ -12,13 +12,13 @@ Unconstrained single M-steps
     ``r``). Reference: the kalman (RTS) smoother.
 Constrained single M-steps
     The late iterate with (a) a speed limit at 70% of the unconstrained answer's top speed plus area
-    bounds, (b) a circular keep-out zone linearised at the iterate. Kalman cannot take constraints;
-    the reference is Clarabel at 1e-10 with iterative refinement. OSQP gets inner polygons for the
+    bounds, (b) a circular keep-out zone linearised at the iterate. The exact smoothers (kalman, banded)
+    take no constraints; the reference is Clarabel at 1e-10 with iterative refinement. OSQP gets inner polygons for the
     cones, so its objective gap includes that approximation; the ``*_same`` columns compare it with
     the reference solve of the polygonal problem.
 Whole plans
-    ``--iterations`` (100) EM iterations on A, B, C, ``--seeds`` seeds (kalman, clarabel, osqp) and
-    ``--cvxpy-seeds`` seeds (each cvxpy solver): wall time, total distance and the largest position
+    ``--iterations`` (100) EM iterations on A, B, C, ``--seeds`` seeds (kalman, banded, clarabel, osqp)
+    and ``--cvxpy-seeds`` seeds (each cvxpy solver): wall time, total distance and the largest position
     difference to the kalman plan of the same scenario, compared by statistics, not exactly
     (docs/model.md section 4.6): EM amplifies tiny M-step differences.
 

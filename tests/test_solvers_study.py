@@ -44,8 +44,8 @@ def test_quick_solvers_study(tmp_path: Path) -> None:
     for r in unc:
         if r["backend"] == "kalman":
             assert r["status"] == "optimal" and r["max_pos_diff"] == 0.0
-        if r["backend"] in ("clarabel", "osqp"):
-            # The QP backends solve the same M-step as the RTS smoother, to solver precision.
+        if r["backend"] in ("banded", "clarabel", "osqp"):
+            # The banded smoother and the QP backends solve the same M-step as the RTS smoother.
             assert r["status"] == "optimal", r
             assert r["max_pos_diff"] < 1e-6, r
             assert abs(r["objective_gap"]) < 1e-9, r
@@ -60,7 +60,7 @@ def test_quick_solvers_study(tmp_path: Path) -> None:
     con = [r for r in rows if r["part"] == "constrained"]
     by = {(r["case"], r["backend"]): r for r in con}
     for case in ("speed+area", "obstacle"):
-        assert by[(case, "kalman")]["status"] == "n/a"
+        assert by[(case, "kalman")]["status"] == by[(case, "banded")]["status"] == "n/a"
         ref = by[(case, "reference (cones)")]
         assert ref["status"] == "optimal" and ref["max_pos_diff"] == 0.0
         clar = by[(case, "clarabel")]
@@ -79,11 +79,12 @@ def test_quick_solvers_study(tmp_path: Path) -> None:
     kinds = {r["backend"]: r for r in plans}
     assert kinds["kalman"]["status"] == "optimal" and kinds["kalman"]["max_pos_diff"] == 0.0
     assert kinds["clarabel"]["status"] == "optimal" and kinds["clarabel"]["max_pos_diff"] < 1e-4
+    assert kinds["banded"]["status"] == "optimal" and kinds["banded"]["max_pos_diff"] < 1e-8
     assert kinds["osqp"]["iterations_done"] == 10
     assert kinds["cvxpy/GLOP"]["status"] == "n/a" and kinds["cvxpy/GLOP"]["failed_at"] == 1
 
     summary = json.loads((tmp_path / "solvers.json").read_text())
-    assert {s["backend"] for s in summary["plans"]} >= {"kalman", "clarabel", "osqp"}
+    assert {s["backend"] for s in summary["plans"]} >= {"kalman", "banded", "clarabel", "osqp"}
     text = (tmp_path / "solvers.md").read_text()
     assert "Reference: the kalman (RTS) smoother" in text
     assert "Kalman cannot take constraints: the reference is Clarabel" in text

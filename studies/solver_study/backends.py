@@ -53,7 +53,7 @@ def cvxpy_solvers() -> list[str]:
 def backends(cvxpy_names: Sequence[str]) -> list[str]:
     """Backend labels of the study: the installed ones, then cvxpy with each solver."""
     have = available_backends()
-    out: list[str] = [b for b in ("kalman", "clarabel", "osqp") if b in have]
+    out: list[str] = [b for b in ("kalman", "banded", "clarabel", "osqp") if b in have]
     if "cvxpy" in have:
         out += [f"cvxpy/{s}" for s in cvxpy_names]
     return out
@@ -69,6 +69,12 @@ def backend_spec(label: str) -> tuple[str, dict[str, Any]]:
     if label.startswith("cvxpy/"):
         return "cvxpy", {"cvxpy_solver": label.split("/", 1)[1]}
     return label, {}
+
+
+def takes_constraints(label: str) -> bool:
+    """Whether the backend of ``label`` imposes constraints at all (not the exact smoothers)."""
+    solver, _ = backend_spec(label)
+    return bool(BACKENDS[solver].supports)
 
 
 def takes_cones(label: str) -> bool:
@@ -117,7 +123,7 @@ def cvxpy_takes(solver: str, needs: frozenset[str]) -> bool:
 def applicable(label: str, needs: frozenset[str] = frozenset()) -> bool:
     """Whether the backend of ``label`` can take an M-step whose constraints need ``needs``."""
     solver, settings = backend_spec(label)
-    if solver == "kalman":
+    if not BACKENDS[solver].supports:  # the exact smoothers: no constraints
         return not needs
     if solver == "cvxpy":
         return cvxpy_takes(str(settings["cvxpy_solver"]), needs)

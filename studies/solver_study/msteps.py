@@ -25,7 +25,7 @@ from pmht_opt.model import POS
 from pmht_opt.mstep import MStepData, mstep_objective
 from pmht_opt.scenario import Scenario
 from studies.provenance import provenance
-from studies.solver_study.backends import STATUS_OK, takes_cones
+from studies.solver_study.backends import STATUS_OK, takes_cones, takes_constraints
 from studies.solver_study.iterates import Iterate, case_constraints
 from studies.solver_study.measure import Job, Measured, measure, not_applicable
 from studies.store import ResultsFile, Schema
@@ -200,8 +200,8 @@ def constrained_rows(
     rows = [make_row(base, "reference (cones)", refs[False], ref, j_ref, cur, sc)]
     rows[0]["reference_status"] = refs[False].raw_status
     for job in constrained_jobs(labels):
-        if job.label == "kalman":
-            m = not_applicable("kalman takes no constraints")
+        if not takes_constraints(job.backend_label):
+            m = not_applicable(f"{job.label} takes no constraints")
         else:
             m = measure(sc, job, prev, cur, repeats, cons)
         row = make_row(base, job.label, m, ref, j_ref, cur, sc)
@@ -222,8 +222,10 @@ def _same_problem(
 ) -> Row:
     """The columns that compare a constrained answer with the reference of the problem it solved
     (cones or polygons), and its violation of the exact constraints."""
-    # Kalman solves nothing here, in neither form.
-    conic = None if job.label == "kalman" else takes_cones(job.backend_label) and not job.polygons
+    # The exact smoothers solve nothing here, in neither form.
+    conic = (
+        takes_cones(job.backend_label) and not job.polygons if takes_constraints(job.backend_label) else None
+    )
     out: Row = {"conic": conic}
     ctx = data.ctx
     out["max_violation"] = (

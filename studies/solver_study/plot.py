@@ -22,6 +22,7 @@ FLOOR = 1e-16
 #: Colour and marker of the backends the study always has; others get spares.
 STYLE: dict[str, tuple[str, str]] = {
     "kalman": ("black", "o"),
+    "banded": ("tab:gray", "P"),
     "reference (cones)": ("black", "h"),
     "clarabel": ("tab:blue", "s"),
     "clarabel (polygons)": ("tab:blue", "*"),
