@@ -12,10 +12,10 @@ Unconstrained single M-steps
     ``r``). Reference: the kalman (RTS) smoother.
 Constrained single M-steps
     The late iterate with (a) a speed limit at 70% of the unconstrained answer's top speed plus area
-    bounds, (b) a circular keep-out zone linearised at the iterate. The exact smoothers (kalman, banded)
-    take no constraints; the reference is Clarabel at 1e-10 with iterative refinement. OSQP gets inner polygons for the
-    cones, so its objective gap includes that approximation; the ``*_same`` columns compare it with
-    the reference solve of the polygonal problem.
+    bounds, (b) a circular keep-out zone linearised at the iterate. The exact smoothers (kalman,
+    banded) take no constraints; the reference is Clarabel at 1e-10 with iterative refinement. OSQP
+    gets inner polygons for the cones, so its objective gap includes that approximation; the
+    ``*_same`` columns compare it with the reference solve of the polygonal problem.
 Whole plans
     ``--iterations`` (100) EM iterations on A, B, C, ``--seeds`` seeds (kalman, banded, clarabel, osqp)
     and ``--cvxpy-seeds`` seeds (each cvxpy solver): wall time, total distance and the largest position

@@ -121,6 +121,10 @@ def test_closed_orderings_are_asked_for_by_name(tmp_path: Path, monkeypatch: pyt
         (["--out", "{tmp}/m.toml/fig.png"], "is not a directory"),
         (["--json", "{tmp}/m.csv"], "unknown metrics format"),
         (["--animate", "{tmp}/a.mp4"], "unknown animation format '.mp4'"),
+        (["--altitude", "-5"], "--altitude: expected"),
+        (["--speed", "nan"], "--speed: expected"),
+        (["--altitude", "40"], "--altitude: applies to QGroundControl exports only"),
+        (["--speed", "3", "--export", "{tmp}/p.csv"], "--speed: applies to QGroundControl exports only"),
     ],
 )
 def test_outputs_are_checked_before_planning(

@@ -14,6 +14,7 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pmht_opt import validation
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.io import Mission, export_csv, export_geojson, export_qgc_plan, qgc_paths
 from pmht_opt.result import PlanResult
@@ -100,6 +101,7 @@ class Outputs:
             out.exports.append(path)
         if getattr(args, "animate", None) is not None:
             out.animation = check_output("--animate", args.animate, {".gif"}, "animation")
+        _check_flight(args, any(p.suffix.lower() == ".plan" for p in out.exports))
         return out
 
     def write(self, result: PlanResult, mission: Mission, args: argparse.Namespace) -> None:
@@ -127,6 +129,18 @@ class Outputs:
         for path in self.exports:
             for file in _export(result, mission, path, args):
                 print(f"{EXPORTS[path.suffix.lower()]}: {file}")
+
+
+def _check_flight(args: argparse.Namespace, plan_export: bool) -> None:
+    """``--altitude`` and ``--speed`` checked before planning: non-negative numbers, and only with a
+    ``.plan`` export (the one output they change), so that neither is silently ignored."""
+    for flag, name in (("--altitude", "altitude"), ("--speed", "speed")):
+        value = getattr(args, name, None)
+        if value is None:
+            continue
+        validation.real(flag, value, ConfigError, 0.0)
+        if not plan_export:
+            raise ConfigError(f"{flag}: applies to QGroundControl exports only; add --export FILE.plan.")
 
 
 def _export(result: PlanResult, mission: Mission, path: Path, args: argparse.Namespace) -> list[Path]:

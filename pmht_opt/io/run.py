@@ -39,7 +39,8 @@ def order_mission(mission: Mission) -> TourResult:
     ------
     ConfigError
         A method this installation lacks, an option it does not take, or a return to base with a
-        method that cannot close its routes.
+        method that cannot close its routes; an option's value it refuses, named as
+        ``<file>: planner.ordering.<option>: ...`` (the file's name when the mission was read from one).
     """
     from pmht_opt.ordering import order_locales
 
@@ -54,7 +55,11 @@ def order_mission(mission: Mission) -> TourResult:
         options = {**options, "closed": True}
     else:
         _orderer(s.method)
-    return order_locales(mission.scenario, method=s.method, **options)
+    try:
+        return order_locales(mission.scenario, method=s.method, **options)
+    except ConfigError as err:  # an option's value: named as the mission names it
+        where = f"{mission.source.name}: " if mission.source is not None else ""
+        raise ConfigError(f"{where}planner.ordering.{err}") from None
 
 
 def _pmht(mission: Mission, config: PMHTConfig, callback: ProgressCallback | None) -> PlanResult:
