@@ -59,7 +59,7 @@ def order_mission(mission: Mission) -> TourResult:
         return order_locales(mission.scenario, method=s.method, **options)
     except ConfigError as err:  # an option's value: named as the mission names it
         where = f"{mission.source.name}: " if mission.source is not None else ""
-        raise ConfigError(f"{where}planner.ordering.{err}") from None
+        raise type(err)(f"{where}planner.ordering.{err}") from None
 
 
 def _pmht(mission: Mission, config: PMHTConfig, callback: ProgressCallback | None) -> PlanResult:
