@@ -28,6 +28,7 @@ from pmht_opt.exceptions import (
     ScenarioError,
     SolverError,
     UnknownSolverError,
+    WrongAnswerError,
 )
 from pmht_opt.model import MotionModel
 from pmht_opt.mstep import available_backends, solve_mstep
@@ -91,6 +92,7 @@ __all__ = [
     "TourResult",
     "UnknownSolverError",
     "VisitAll",
+    "WrongAnswerError",
     "__version__",
     "available_backends",
     "order_locales",

@@ -36,6 +36,12 @@ class SolverError(PmhtOptError, RuntimeError):
         self.status = status
 
 
+class WrongAnswerError(SolverError):
+    """An answer the backend reported as solved that the library's own check refused: not finite, away
+    from the exact smoother's, or cheaper than the unconstrained optimum (``status`` is what the
+    backend reported)."""
+
+
 class InfeasibleError(SolverError):
     """Hard constraints that no plan can meet; the message names the constraint where it can tell."""
 

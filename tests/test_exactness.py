@@ -95,3 +95,36 @@ def test_the_objective_keeps_its_precision_at_small_dt(dt: float) -> None:
     res = _exact_plan(sc, anneal=None, max_iter=6)
     obj = res.history.objective
     assert np.all(np.diff(obj) >= -1e-9 * np.abs(obj[1:]))
+
+
+def test_an_answer_reported_solved_but_wrong_is_refused() -> None:
+    # The check of every M-step answer against the exact smoother: a backend's "optimal" is not taken
+    # on trust. A 1e-4 shift of one platform's path, or a non-finite entry, is refused with the status
+    # the backend reported.
+    from pmht_opt.mstep.base import MStepData, MStepOutput
+    from pmht_opt.mstep.check import check_answer
+    from pmht_opt.mstep.registry import make_mstep
+
+    sc, W, WZ, r = _fixture("anneal-first-A")
+    mstep = make_mstep(sc, "kalman")
+    data = MStepData(W, WZ, r)
+    good = mstep.solve(data)
+    check_answer(mstep, data, good)  # the exact answer passes
+    for change, match in ((1e-4, "platform 2 is 0.0001 from the exact"), (np.nan, "not finite")):
+        states = good.states.copy()
+        states[2, 7:, 0] += change
+        with pytest.raises(po.WrongAnswerError, match=match) as info:
+            check_answer(mstep, data, MStepOutput(states=states, raw_status="optimal"))
+        assert info.value.status == "optimal" and isinstance(info.value, po.SolverError)
+
+
+def test_scs_through_cvxpy_is_exact_or_refused() -> None:
+    # SCS (first order, cvxpy's bundled conic solver) reports "optimal" at 1e-5 of the exact M-step on
+    # annealing's first weights: the answer is refused, never used.
+    sc, W, WZ, r = _fixture("anneal-first-A")
+    try:
+        states = solve_mstep(sc, W, WZ, r, solver="cvxpy", settings={"cvxpy_solver": "SCS"})
+    except po.WrongAnswerError as err:
+        assert err.status == "optimal"
+        return
+    assert float(np.max(np.abs(states[:, :, [0, 3]] - _reference("anneal-first-A")))) <= TOL

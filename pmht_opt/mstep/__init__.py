@@ -82,6 +82,18 @@ def solve_mstep(
     -------
     numpy.ndarray
         ``(M, T+1, 6)`` states, ``t = 0..T``.
+
+    Raises
+    ------
+    ScenarioError, ConfigError, UnknownSolverError
+        Bad input, naming the field.
+    InfeasibleError
+        Hard constraints no answer can meet.
+    WrongAnswerError
+        An answer the backend reported as solved but the check refused (away from the exact
+        smoother's without constraints, cheaper than the unconstrained optimum with them).
+    SolverError
+        Any other solve the backend did not stand behind.
     """
     if not isinstance(scenario, Scenario):
         raise ScenarioError(f"scenario: expected a Scenario, got {type(scenario).__name__}.")

@@ -10,7 +10,8 @@ milliseconds for all platforms):
 * a platform with constraint rows must not have a lower M-step cost than the unconstrained optimum
   (constraints only add cost) beyond :data:`COST_SLACK` of its size.
 
-Every answer must also be finite. A failed check raises :class:`~pmht_opt.exceptions.SolverError`
+Every answer must also be finite. A failed check raises :class:`~pmht_opt.exceptions.WrongAnswerError`
+(a :class:`~pmht_opt.exceptions.SolverError`)
 naming the platform, the distance and the status the backend reported.
 """
 
@@ -20,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pmht_opt.exceptions import SolverError
+from pmht_opt.exceptions import WrongAnswerError
 from pmht_opt.model import PX, PY
 
 if TYPE_CHECKING:
@@ -33,10 +34,10 @@ COST_SLACK = 1e-6
 
 
 def check_answer(mstep: MStep, data: MStepData, out: MStepOutput) -> None:
-    """Raise :class:`SolverError` unless ``out`` is a finite, plausible optimum of ``data``."""
+    """Raise :class:`WrongAnswerError` unless ``out`` is a finite, plausible optimum of ``data``."""
     backend = getattr(mstep, "solver", mstep.name)
     if not np.all(np.isfinite(out.states)):
-        raise SolverError(
+        raise WrongAnswerError(
             f"{backend}: the M-step answer is not finite (status {out.raw_status}).", backend, out.raw_status
         )
     if mstep.name == "banded":
@@ -53,7 +54,7 @@ def check_answer(mstep: MStep, data: MStepData, out: MStepOutput) -> None:
         scale = max(1.0, float(np.max(np.abs(p_exact[m]))))
         gap = float(np.max(np.abs(p_out[m] - p_exact[m])))
         if gap > AGREEMENT * scale:
-            raise SolverError(
+            raise WrongAnswerError(
                 f"{backend}: the M-step answer of platform {m} is {gap:.3g} from the exact smoother's "
                 f"although the backend reported {out.raw_status!r}; the problem is too badly scaled for "
                 "it (try solver='auto' or 'banded').",
@@ -76,7 +77,7 @@ def _check_cost(mstep: MStep, data: MStepData, out: MStepOutput, m: int, floor: 
     fit = float(np.sum(W[:, None] * (pos - zt) ** 2)) / (2.0 * data.r)
     cost = prior + fit
     if cost < floor - COST_SLACK * max(1.0, abs(floor)):
-        raise SolverError(
+        raise WrongAnswerError(
             f"{backend}: the constrained M-step answer of platform {m} costs {cost:.6g}, below the "
             f"unconstrained optimum {floor:.6g}: it is not a solution (status {out.raw_status!r}).",
             backend,

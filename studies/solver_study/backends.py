@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import solvers
-from pmht_opt.exceptions import InfeasibleError, SolverError, UnknownSolverError
+from pmht_opt.exceptions import InfeasibleError, SolverError, UnknownSolverError, WrongAnswerError
 from pmht_opt.mstep import BACKENDS, available_backends
 
 STATUS_OK = "optimal"
@@ -137,6 +137,8 @@ def error_status(err: BaseException, label: str, needs: frozenset[str] = frozens
     """
     message = f"{type(err).__name__}: {err}"
     raw = str(err.status or "") if isinstance(err, SolverError) else ""
+    if isinstance(err, WrongAnswerError):  # reported solved, refused by the library's check
+        raw = f"{raw or 'solved'} reported, answer refused by the check"
     if isinstance(err, InfeasibleError):
         return STATUS_INFEASIBLE, raw, message
     if isinstance(err, UnknownSolverError) or not applicable(label, needs):
