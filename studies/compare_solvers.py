@@ -80,6 +80,7 @@ from studies.solver_study.plans import PLANS
 from studies.solver_study.plot import plot
 from studies.solver_study.summary import summarise_msteps, summarise_plans
 from studies.store import read_rows
+from studies.stored import run_provenance
 from studies.trials import run_trials
 
 #: The study's trial table, for ``--verify``.
@@ -225,14 +226,30 @@ def run(
 
 
 def _write(
-    out_dir: Path, settings: Mapping[str, Any], mstep_rows: Rows, plan_rows: Rows, progress: bool
+    out_dir: Path,
+    settings: Mapping[str, Any],
+    mstep_rows: Rows,
+    plan_rows: Rows,
+    progress: bool,
+    measured: Mapping[str, Any] | None = None,
 ) -> tuple[dict[str, Any], list[Path]]:
     """Summaries, ``solvers.json``, ``solvers.md`` and ``solvers.png`` from the raw rows; the same
-    function serves a run and ``--tables-only``, so both write the same text from the same rows."""
+    function serves a run and ``--tables-only``, so both write the same text from the same rows.
+    ``measured`` is the provenance of the run that measured the rows (``--tables-only``: the one
+    stored); by default this process's."""
     mstep_summary = summarise_msteps(mstep_rows)
     plan_summary = summarise_plans(plan_rows)
-    prov = provenance()
-    summary = {"settings": dict(settings), "provenance": prov, "msteps": mstep_summary, "plans": plan_summary}
+    prov = dict(measured) if measured is not None else provenance()
+    summary: dict[str, Any] = {
+        "settings": dict(settings),
+        "provenance": prov,
+        "msteps": mstep_summary,
+        "plans": plan_summary,
+    }
+    if measured is not None:
+        summary["tables_only"] = True
+        summary["runs"] = run_provenance(PLANS, out_dir) if PLANS.path(out_dir).exists() else []
+        summary["written_by"] = provenance()
     text = markdown(mstep_summary, plan_summary, plan_rows, settings, prov)
     files = [
         write_json(out_dir / "solvers.json", summary),
@@ -247,8 +264,9 @@ def _write(
 def _report(out_dir: Path, progress: bool) -> tuple[dict[str, Any], list[Path]]:
     """Summaries, tables and figure again from the raw tables and settings already in ``out_dir``."""
     try:
-        settings = json.loads((out_dir / "solvers.json").read_text())["settings"]
-    except (OSError, ValueError, KeyError) as err:
+        stored = json.loads((out_dir / "solvers.json").read_text())
+        settings, measured = stored["settings"], stored["provenance"]
+    except (OSError, ValueError, KeyError, TypeError) as err:
         raise ConfigError(f"--tables-only: no usable {out_dir / 'solvers.json'} ({err}).") from None
     parts = settings["parts"]
     mstep_rows: list[dict[str, Any]] = []
@@ -268,7 +286,7 @@ def _report(out_dir: Path, progress: bool) -> tuple[dict[str, Any], list[Path]]:
                 and r["horizon"] == settings["horizon"]
             ):
                 plan_rows.append(r)
-    return _write(out_dir, settings, mstep_rows, plan_rows, progress)
+    return _write(out_dir, settings, mstep_rows, plan_rows, progress, measured)
 
 
 @dataclass(frozen=True)
@@ -293,6 +311,29 @@ class Options:
         positive_int("--horizon", self.horizon, minimum=2)
         if not self.kinds or not self.parts:
             raise ConfigError("--kinds and --parts: expected at least one value each.")
+
+    def command(self) -> str:
+        """The command that reproduces a run with these options (those a full run sets differently
+        from its defaults, or ``--quick`` with the cvxpy solvers named)."""
+        words = ["pmht-opt study solvers"]
+        if self.quick:
+            words.append("--quick")
+        else:
+            full = Options()
+            for flag, value, default in (
+                ("--kinds", self.kinds, full.kinds),
+                ("--repeats", self.repeats, full.repeats),
+                ("--seeds", self.seeds, full.seeds),
+                ("--cvxpy-seeds", self.cvxpy_seeds, full.cvxpy_seeds),
+                ("--iterations", self.iterations, full.iterations),
+                ("--horizon", self.horizon, full.horizon),
+                ("--parts", self.parts, full.parts),
+            ):
+                if value != default:
+                    words.append(f"{flag} {' '.join(map(str, value)) if isinstance(value, tuple) else value}")
+        if self.cvxpy_solvers is not None:
+            words.append("--cvxpy-solvers " + " ".join(self.cvxpy_solvers))
+        return " ".join(words)
 
     @staticmethod
     def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -357,7 +398,7 @@ def main(run_options: RunOptions, options: Options) -> list[Path]:
             executor=ex,
             progress=not run_options.quiet,
             resume=not run_options.fresh,
-            command="pmht-opt study solvers" + (" --quick" if options.quick else ""),
+            command=options.command(),
             tables_only=run_options.tables_only,
         )
     return written

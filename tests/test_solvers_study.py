@@ -93,6 +93,9 @@ def test_quick_solvers_study(tmp_path: Path) -> None:
     (tmp_path / "solvers.md").unlink()
     assert main(["study", "solvers", "--out", str(tmp_path), "--tables-only", "--quiet"]) == 0
     assert (tmp_path / "solvers.md").read_text() == text
+    again = json.loads((tmp_path / "solvers.json").read_text())
+    assert again["tables_only"] and again["provenance"] == summary["provenance"]  # the measuring run's
+    assert again["runs"][0]["commit"] == summary["provenance"]["commit"]
 
 
 def test_iterate_is_the_planners_run() -> None:
@@ -140,3 +143,13 @@ def test_failures_are_classified_by_type_and_capability() -> None:
         assert cvxpy_takes("OSQP", frozenset({"linear"})) and not cvxpy_takes("OSQP", frozenset({"soc"}))
     assert cvxpy_takes("CLARABEL", frozenset({"linear", "soc"}))
     assert not cvxpy_takes("NO_SUCH_SOLVER", frozenset())
+
+
+def test_the_reproduce_command_names_every_option_a_run_changed() -> None:
+    from studies.compare_solvers import Options
+
+    assert Options().command() == "pmht-opt study solvers"
+    assert Options(seeds=2, kinds=("A", "C"), cvxpy_solvers=("CLARABEL", "SCS")).command() == (
+        "pmht-opt study solvers --kinds A C --seeds 2 --cvxpy-solvers CLARABEL SCS"
+    )
+    assert Options(quick=True, seeds=1).command() == "pmht-opt study solvers --quick"
