@@ -60,7 +60,7 @@ METHODS: dict[str, str] = {
     "ortools": "OR-Tools ordering",
     "ortools-smoothed": "OR-Tools PMHT smoothed",
 }
-#: Table 1 of the paper (SPEC section 5): distance and CPU seconds per scenario and algorithm.
+#: Table 1 of the paper (docs/model.md section 12): distance and CPU seconds per scenario and algorithm.
 PAPER: dict[str, dict[str, tuple[float, float]]] = {
     "A": {"ga": (117.8, 18.3), "ga-smoothed": (124.6, 39.4), "pmht": (94.6, 23.1)},
     "B": {"ga": (118.8, 17.4), "ga-smoothed": (93.8, 33.3), "pmht": (77.8, 16.7)},
