@@ -313,24 +313,21 @@ class Options:
             raise ConfigError("--kinds and --parts: expected at least one value each.")
 
     def command(self) -> str:
-        """The command that reproduces a run with these options (those a full run sets differently
-        from its defaults, or ``--quick`` with the cvxpy solvers named)."""
-        words = ["pmht-opt study solvers"]
-        if self.quick:
-            words.append("--quick")
-        else:
-            full = Options()
-            for flag, value, default in (
-                ("--kinds", self.kinds, full.kinds),
-                ("--repeats", self.repeats, full.repeats),
-                ("--seeds", self.seeds, full.seeds),
-                ("--cvxpy-seeds", self.cvxpy_seeds, full.cvxpy_seeds),
-                ("--iterations", self.iterations, full.iterations),
-                ("--horizon", self.horizon, full.horizon),
-                ("--parts", self.parts, full.parts),
-            ):
-                if value != default:
-                    words.append(f"{flag} {' '.join(map(str, value)) if isinstance(value, tuple) else value}")
+        """The command that reproduces a run with these options: ``--quick`` if set, then every option
+        that differs from the defaults of that mode (full or quick), and the cvxpy solvers if named."""
+        words = ["pmht-opt study solvers"] + (["--quick"] if self.quick else [])
+        base = QUICK_OPTIONS if self.quick else Options()
+        for flag, value, default in (
+            ("--kinds", self.kinds, base.kinds),
+            ("--repeats", self.repeats, base.repeats),
+            ("--seeds", self.seeds, base.seeds),
+            ("--cvxpy-seeds", self.cvxpy_seeds, base.cvxpy_seeds),
+            ("--iterations", self.iterations, base.iterations),
+            ("--horizon", self.horizon, base.horizon),
+            ("--parts", self.parts, base.parts),
+        ):
+            if value != default:
+                words.append(f"{flag} {' '.join(map(str, value)) if isinstance(value, tuple) else value}")
         if self.cvxpy_solvers is not None:
             words.append("--cvxpy-solvers " + " ".join(self.cvxpy_solvers))
         return " ".join(words)
@@ -367,17 +364,24 @@ class Options:
         names = ns.cvxpy_solvers
         if names is None and quick:
             names = [n for n in cvxpy_solvers() if n not in QUICK_SKIP]
+        full, reduced = Options(), QUICK_OPTIONS
         return cls(
             quick=quick,
-            kinds=tuple(ns.kinds) if ns.kinds else (("A",) if quick else ("A", "B", "C")),
-            repeats=pick(ns.repeats, 5, 2),
-            seeds=pick(ns.seeds, 5, 1),
-            cvxpy_seeds=pick(ns.cvxpy_seeds, 2, 1),
-            iterations=pick(ns.iterations, 100, 10),
-            horizon=pick(ns.horizon, 500, 80),
+            kinds=tuple(ns.kinds) if ns.kinds else (reduced.kinds if quick else full.kinds),
+            repeats=pick(ns.repeats, full.repeats, reduced.repeats),
+            seeds=pick(ns.seeds, full.seeds, reduced.seeds),
+            cvxpy_seeds=pick(ns.cvxpy_seeds, full.cvxpy_seeds, reduced.cvxpy_seeds),
+            iterations=pick(ns.iterations, full.iterations, reduced.iterations),
+            horizon=pick(ns.horizon, full.horizon, reduced.horizon),
             parts=tuple(ns.parts),
             cvxpy_solvers=None if names is None else tuple(names),
         )
+
+
+#: The defaults of ``--quick`` (cvxpy solvers aside): what :meth:`Options.command` compares with.
+QUICK_OPTIONS = Options(
+    quick=True, kinds=("A",), repeats=2, seeds=1, cvxpy_seeds=1, iterations=10, horizon=80
+)
 
 
 def main(run_options: RunOptions, options: Options) -> list[Path]:

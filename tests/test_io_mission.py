@@ -18,8 +18,6 @@ from pmht_opt.io import (
     example_mission,
     load_mission,
     mission_from_dict,
-    order_mission,
-    plan_mission,
     read_points,
     save_mission,
 )
@@ -347,14 +345,3 @@ def test_settings_defaults_are_the_librarys() -> None:
     )
     paper = read_settings("planner", {"paper": True}).config(())
     assert paper.update_time_prior and paper.anneal.empty
-
-
-def test_an_ordering_value_is_named_with_the_file_and_the_field(tmp_path: Path) -> None:
-    # The option's name is known to the method, its value is checked when the ordering runs: the
-    # error then names the file and the field as the mission writes them.
-    text = mission_text(planner='kind = "smoothed"\n[planner.ordering]\nmethod = "ga"\npopulation = -3')
-    mission = load_mission(write(tmp_path, text, "survey.toml"))
-    with pytest.raises(ConfigError, match=r"^survey.toml: planner.ordering.population: expected"):
-        plan_mission(mission)
-    with pytest.raises(ConfigError, match=r"^survey.toml: planner.ordering.population: expected"):
-        order_mission(mission)

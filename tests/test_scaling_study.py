@@ -27,7 +27,7 @@ def test_scaling_study_quick(tmp_path: Path) -> None:
     scale = summary["scale"]
     assert scale["size"] == [120, 100, 4] and scale["runs"] == 1 and not scale["errors"]
     assert 0 < scale["estep_gated_calls"] <= scale["estep_calls"]  # plain EM gates from the start
-    assert scale["target"]["met"] is None  # not the target's size
+    assert scale["target"]["met"] is None and "not the target's size" in scale["target"]["verdict"]
     assert "## Scale point N = 120" in (tmp_path / "scaling.md").read_text()
     assert cli_main(["study", "scaling", "--quick", "--reps", "0", "--out", str(tmp_path), "--quiet"]) == 2
     # The summary again from the stored plans, none run: the same summary, the table untouched.
@@ -39,6 +39,12 @@ def test_scaling_study_quick(tmp_path: Path) -> None:
     assert again["headline"] == summary["headline"] and again["sweeps"] == summary["sweeps"]
     assert again["scale"] == summary["scale"]
     assert again["tables_only"] and again["runs"][0]["commit"] == summary["provenance"]["commit"]
+    # With the run's own summary still there, its machine and provenance are kept.
+    (tmp_path / "scaling.json").write_text(json.dumps(summary))
+    assert cli_main([*args, "--tables-only"]) == 0
+    kept = json.loads((tmp_path / "scaling.json").read_text())
+    assert kept["machine"] == summary["machine"] and kept["provenance"] == summary["provenance"]
+    assert kept["written_by"]["commit"] == summary["provenance"]["commit"]
 
 
 def test_one_plan_is_measured_in_process() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 from pathlib import Path
@@ -152,4 +153,19 @@ def test_the_reproduce_command_names_every_option_a_run_changed() -> None:
     assert Options(seeds=2, kinds=("A", "C"), cvxpy_solvers=("CLARABEL", "SCS")).command() == (
         "pmht-opt study solvers --kinds A C --seeds 2 --cvxpy-solvers CLARABEL SCS"
     )
-    assert Options(quick=True, seeds=1).command() == "pmht-opt study solvers --quick"
+    quick = Options.from_args(
+        argparse.Namespace(
+            quick=True,
+            kinds=["B"],
+            repeats=None,
+            seeds=3,
+            cvxpy_seeds=None,
+            iterations=None,
+            horizon=None,
+            parts=["plans"],
+            cvxpy_solvers=["CLARABEL"],
+        )
+    )
+    assert quick.command() == (
+        "pmht-opt study solvers --quick --kinds B --seeds 3 --parts plans --cvxpy-solvers CLARABEL"
+    )

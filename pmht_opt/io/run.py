@@ -39,8 +39,7 @@ def order_mission(mission: Mission) -> TourResult:
     ------
     ConfigError
         A method this installation lacks, an option it does not take, or a return to base with a
-        method that cannot close its routes; an option's value it refuses, named as
-        ``<file>: planner.ordering.<option>: ...`` (the file's name when the mission was read from one).
+        method that cannot close its routes; an option's value it refuses (named by the option).
     """
     from pmht_opt.ordering import order_locales
 
@@ -55,11 +54,7 @@ def order_mission(mission: Mission) -> TourResult:
         options = {**options, "closed": True}
     else:
         _orderer(s.method)
-    try:
-        return order_locales(mission.scenario, method=s.method, **options)
-    except ConfigError as err:  # an option's value: named as the mission names it
-        where = f"{mission.source.name}: " if mission.source is not None else ""
-        raise type(err)(f"{where}planner.ordering.{err}") from None
+    return order_locales(mission.scenario, method=s.method, **options)
 
 
 def _pmht(mission: Mission, config: PMHTConfig, callback: ProgressCallback | None) -> PlanResult:

@@ -90,8 +90,8 @@ def solve_mstep(
     InfeasibleError
         Hard constraints no answer can meet.
     WrongAnswerError
-        An answer the backend reported as solved but the check refused (away from the exact
-        smoother's without constraints, cheaper than the unconstrained optimum with them).
+        An answer the backend reported as solved but the check refused (not finite, away from the
+        exact smoother's without constraints, cheaper than the unconstrained optimum with them).
     SolverError
         Any other solve the backend did not stand behind.
     """

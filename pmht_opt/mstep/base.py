@@ -120,7 +120,8 @@ class MStep(abc.ABC):
         """Minimise ``J`` for these weights, subject to the constraints active in ``data``.
 
         The answer is checked before it is returned (:func:`~pmht_opt.mstep.check.check_answer`): a
-        backend that reports success on a wrong answer raises ``SolverError``.
+        backend that reports success on a wrong answer raises
+        :class:`~pmht_opt.exceptions.WrongAnswerError`.
         """
         from pmht_opt.mstep.check import check_answer
 

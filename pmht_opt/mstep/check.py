@@ -12,7 +12,7 @@ milliseconds for all platforms):
 
 Every answer must also be finite. A failed check raises :class:`~pmht_opt.exceptions.WrongAnswerError`
 (a :class:`~pmht_opt.exceptions.SolverError`)
-naming the platform, the distance and the status the backend reported.
+naming the status the backend reported and, for a finite answer, the platform and how far it is off.
 """
 
 from __future__ import annotations
@@ -56,8 +56,8 @@ def check_answer(mstep: MStep, data: MStepData, out: MStepOutput) -> None:
         if gap > AGREEMENT * scale:
             raise WrongAnswerError(
                 f"{backend}: the M-step answer of platform {m} is {gap:.3g} from the exact smoother's "
-                f"although the backend reported {out.raw_status!r}; the problem is too badly scaled for "
-                "it (try solver='auto' or 'banded').",
+                f"although the backend reported {out.raw_status!r}: its tolerances, or the problem's "
+                "scaling, are too loose for an exact M-step (try solver='auto' or 'banded').",
                 backend,
                 out.raw_status,
             )

@@ -191,7 +191,7 @@ def scale_section(summary: Summary) -> list[str]:
     s = summary["scale"]
     n, t, m = s["size"]
     tgt = s["target"]
-    verdict = {True: "met", False: "NOT met", None: "not measured (not the target's size)"}[tgt["met"]]
+    verdict = tgt["verdict"]
     lines = [
         "",
         f"## Scale point N = {n}, T = {t}, M = {m} ({summary['fastest']}, plain EM, gated E-step)",

@@ -159,7 +159,7 @@ TIMES = (
     "estep_time_gated_s",
     "estep_time_dense_s",
 )
-#: What a child records; the two tasks record different results, so every column is optional.
+#: What a child records; the tasks record different results, so every column is optional.
 RESULTS = {
     **{name: "float?" for name in TIMES},
     "estep_calls": "int?",

@@ -115,15 +115,20 @@ def scale_point(design: Design, rows: Rows) -> dict[str, Any]:
     """The scale point's plan (:attr:`Design.scale`) and its verdict against :data:`SCALE_SECONDS` and
     :data:`SCALE_GIB`; ``met`` is ``None`` unless it is the full study's point, or without a plan."""
     stats = summarise_point(ok(rows))
-    met = None
-    if design.scale == FULL.scale and design.iterations == FULL.iterations and stats["runs"]:
+    met: bool | None = None
+    if design.scale != FULL.scale or design.iterations != FULL.iterations:
+        verdict = "not measured (not the target's size and iterations)"
+    elif not stats["runs"]:
+        verdict = "not measured (no plan finished)"
+    else:
         met = bool(stats["wall_s"] <= SCALE_SECONDS and stats["peak_rss_mib"] <= SCALE_GIB * 1024)
+        verdict = "met" if met else "NOT met"
     errors = [str(r.get("error")) for r in rows if r.get("error")]
     return {
         "size": list(design.scale),
         **stats,
         "errors": errors,
-        "target": {"seconds": SCALE_SECONDS, "gib": SCALE_GIB, "met": met},
+        "target": {"seconds": SCALE_SECONDS, "gib": SCALE_GIB, "met": met, "verdict": verdict},
     }
 
 
