@@ -62,17 +62,17 @@ def SOC(dim: int) -> Cone:
     return Cone("soc", dim)
 
 
-def _floats(name: str, arr: Any) -> np.ndarray:
-    """``arr`` as a float array, or :class:`ProblemError` naming it (strings, objects, ragged lists)."""
+def floats(name: str, arr: Any, error: type[Exception] = ProblemError) -> np.ndarray:
+    """``arr`` as a float array, or ``error`` naming it (strings, objects, ragged lists)."""
     try:
         return np.asarray(arr, dtype=float)
     except (TypeError, ValueError):
-        raise ProblemError(f"{name} must be numeric, got {type(arr).__name__}.") from None
+        raise error(f"{name} must be numeric, got {type(arr).__name__}.") from None
 
 
 def dense(name: str, arr: Any, shape: tuple[int, ...]) -> np.ndarray:
     """``arr`` as a float array of ``shape`` with finite entries; :class:`ProblemError` naming it if not."""
-    out = _floats(name, arr)
+    out = floats(name, arr)
     if out.shape != shape:
         raise ProblemError(f"{name} has shape {out.shape}, expected {shape}.")
     if not np.all(np.isfinite(out)):
@@ -82,7 +82,7 @@ def dense(name: str, arr: Any, shape: tuple[int, ...]) -> np.ndarray:
 
 def _as_csc(name: str, mat: Any, shape: tuple[int, int]) -> sp.csc_matrix:
     if not sp.issparse(mat):
-        arr = _floats(name, mat)
+        arr = floats(name, mat)
         if arr.ndim != 2:
             raise ProblemError(f"{name} must be a 2-D matrix, got an array of shape {arr.shape}.")
         mat = sp.csc_matrix(arr)
@@ -122,7 +122,7 @@ class QPProblem:
     cones: tuple[Cone, ...] = field(default_factory=tuple)
 
     def __post_init__(self) -> None:
-        q = _floats("q", self.q)
+        q = floats("q", self.q)
         if q.ndim != 1:
             raise ProblemError(f"q must be a vector, got shape {q.shape}.")
         n = q.shape[0]
@@ -130,7 +130,7 @@ class QPProblem:
             raise ProblemError("The problem has no variables.")
         self.q = q
         self.P = _upper_triangle(_as_csc("P", self.P, (n, n)))
-        b = _floats("b", self.b).reshape(-1)
+        b = floats("b", self.b).reshape(-1)
         self.b = b
         self.A = _as_csc("A", self.A, (b.shape[0], n))
         if not isinstance(self.cones, (tuple, list)) or not all(isinstance(c, Cone) for c in self.cones):

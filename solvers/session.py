@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from solvers.exceptions import SettingsError, UpdateError
-from solvers.problem import QPProblem, QPSolution, Status
+from solvers.problem import QPProblem, QPSolution, Status, floats
 
 
 def work_amount(what: str, value: object) -> float:
@@ -170,10 +170,7 @@ class QPSession(abc.ABC):
 def _checked(name: str, values: np.ndarray | None, size: int) -> np.ndarray | None:
     if values is None:
         return None
-    try:
-        arr = np.asarray(values, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise UpdateError(f"{name} must be numeric, got {type(values).__name__}.") from None
+    arr = floats(name, values, UpdateError).reshape(-1)
     if arr.shape[0] != size:
         raise UpdateError(f"{name} has {arr.shape[0]} values, the session's problem has {size}.")
     if not np.all(np.isfinite(arr)):

@@ -24,8 +24,9 @@ linear block, a whole cone of a conic block) gets a non-negative slack ``s`` tha
 from __future__ import annotations
 
 import abc
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, cast
 
 import numpy as np
 
@@ -215,3 +216,21 @@ class Constraint(abc.ABC):
             worst=worst_at if worst_val > tol else None,
             details=details or {},
         )
+
+
+def fitting_constraints(
+    scenario: Scenario, constraints: Any, containers: tuple[type, ...] = (tuple, list)
+) -> tuple[Constraint, ...]:
+    """``constraints`` (one of ``containers``, never a lone constraint) as a tuple of constraints that
+    fit ``scenario``; :class:`ConfigError` naming ``constraints`` otherwise, or the constraint's own
+    error when it does not fit the scenario."""
+    if isinstance(constraints, Constraint) or not isinstance(constraints, containers):
+        raise ConfigError(f"constraints: expected a sequence of constraints, got {constraints!r}.")
+    cons: tuple[Any, ...] = tuple(cast("Iterable[Any]", constraints))  # a container, checked above
+    for con in cons:
+        if not isinstance(con, Constraint):
+            raise ConfigError(
+                f"constraints: expected pmht_opt.constraints objects, got {type(con).__name__}."
+            )
+        con.check_scenario(scenario)
+    return cons

@@ -46,7 +46,7 @@ from typing import Any
 
 from pmht_opt import validation
 from pmht_opt.anneal import Anneal
-from pmht_opt.constraints.base import Constraint
+from pmht_opt.constraints.base import Constraint, fitting_constraints
 from pmht_opt.exceptions import ConfigError, PmhtOptError, ScenarioError
 from pmht_opt.geo import GeoOrigin, check_origin
 from pmht_opt.io import fields
@@ -100,13 +100,7 @@ class Mission:
     def __post_init__(self) -> None:
         if not isinstance(self.scenario, Scenario):
             raise ConfigError(f"scenario: expected a Scenario, got {type(self.scenario).__name__}.")
-        if isinstance(self.constraints, Constraint) or not isinstance(self.constraints, (tuple, list)):
-            raise ConfigError(f"constraints: expected a sequence of constraints, got {self.constraints!r}.")
-        self.constraints = tuple(self.constraints)
-        for con in self.constraints:
-            if not isinstance(con, Constraint):
-                raise ConfigError(f"constraints: expected pmht_opt.constraints objects, got {con!r}.")
-            con.check_scenario(self.scenario)
+        self.constraints = fitting_constraints(self.scenario, self.constraints)
         if not isinstance(self.planner, PlannerSettings):
             raise ConfigError(f"planner: expected PlannerSettings, got {type(self.planner).__name__}.")
         check_origin(self.origin)

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from pmht_opt import validation
-from pmht_opt.constraints.base import Constraint, ConstraintContext
+from pmht_opt.constraints.base import Constraint, ConstraintContext, fitting_constraints
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.mstep.base import MStep, MStepData, MStepOutput
 from pmht_opt.mstep.formulation import mstep_objective
@@ -101,7 +101,7 @@ def solve_mstep(
     W = _weights("W", W, (T, M), nonneg=True)
     WZ = _weights("WZ", WZ, (T, M, 2), nonneg=False)
     r = validation.real("r", r, ConfigError, *validation.R_RANGE)
-    cons = _constraints(scenario, constraints)
+    cons = fitting_constraints(scenario, constraints, (Sequence, set, frozenset))
     if not isinstance(accept_inaccurate, (bool, np.bool_)):
         raise ConfigError(f"accept_inaccurate: expected True or False, got {accept_inaccurate!r}.")
     settings = {} if settings is None else settings
@@ -117,20 +117,6 @@ def solve_mstep(
     finally:
         mstep.close()
     return out.states
-
-
-def _constraints(scenario: Scenario, constraints: Any) -> tuple[Constraint, ...]:
-    """``constraints`` as a tuple of constraints that fit ``scenario``, or ConfigError naming them."""
-    if isinstance(constraints, Constraint) or not isinstance(constraints, (Sequence, set, frozenset)):
-        raise ConfigError(f"constraints: expected a sequence of constraints, got {constraints!r}.")
-    cons = tuple(constraints)
-    for con in cons:
-        if not isinstance(con, Constraint):
-            raise ConfigError(
-                f"constraints: expected pmht_opt.constraints objects, got {type(con).__name__}."
-            )
-        con.check_scenario(scenario)
-    return cons
 
 
 __all__ = [
