@@ -17,8 +17,8 @@ in annealing) the caller runs the dense computation instead.
 
 from __future__ import annotations
 
-import itertools
 import math
+from collections.abc import Iterator
 from typing import NamedTuple
 
 import numpy as np
@@ -38,6 +38,10 @@ _GATE_SLACK = 1.0
 GATE_MAX_FRACTION = 0.1
 #: Locales sampled to estimate the number of candidates before committing to the gated E-step.
 _GATE_SAMPLE = 64
+#: Path points per chunk of the candidate search (:class:`_TreeCandidates`).
+_CHUNK = 32
+#: Path points (or triples) handled per block of locales: a block's arrays stay a few MiB.
+_BLOCK = 1 << 18
 
 
 def gate_margin(gate: float | str | None, T: int, M: int) -> float | None:
@@ -69,59 +73,123 @@ class GatedWeights(NamedTuple):
     inputs: EStepInputs
 
 
-def _ball_lists(tree: cKDTree, points: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Indices of ``tree``'s points within ``radii`` of each of ``points``: ``(counts, flat indices)``."""
-    lists = tree.query_ball_point(points, radii, return_sorted=False)
-    counts = np.fromiter(map(len, lists), dtype=np.intp, count=len(lists))
-    flat = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.intp, count=int(counts.sum()))
-    return counts, flat
+#: A block of candidates: ``(lo, hi, row, t, platform, d2)`` for the locales ``lo .. hi - 1``, sorted by
+#: locale, then platform; ``d2`` the squared distances where the source computed them, else ``None``.
+Block = tuple[int, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
 
 
 def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
-    """The gated E-step (module docstring), or ``None`` where the dense one should run instead."""
+    """The gated E-step (module docstring), or ``None`` where the dense one should run instead.
+
+    The candidates come a block of locales at a time, sorted by locale and platform, so every
+    locale's and every (locale, platform) pair's candidates are contiguous and the whole computation
+    of a block (log weights, the pair and locale maxima, the gate, the normalisation) runs on arrays
+    that stay small, whatever the size of the problem.
+    """
+    source = _choose_source(inputs, margin)
+    if source is None:
+        return None
     z, positions, r = inputs.locales, inputs.positions, inputs.r
     log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
-    found = _candidates(inputs, margin)
-    if found is None or found[0].size == 0:
-        return None
     M, T, _ = positions.shape
     N = z.shape[0]
-    row, t, plat, seg_count, seg_row = found
-    # The candidates' log weights, with the dense E-step's arithmetic (bit for bit the same).
+    budget = GATE_MAX_FRACTION * N * T * M
     const = log_const(r, T, M, log_tau is None, log_k is None)
+    lse = np.empty(N)
+    rows, cols, values = [], [], []
+    total = 0
+    for lo, hi, row, t, plat, d2 in source.blocks():
+        total += row.size
+        if total > budget:
+            return None
+        if d2 is None:
+            d2 = _squared_distances(z, positions, row, t, plat)
+        # The candidates' log weights, with the dense E-step's arithmetic (bit for bit the same).
+        a = log_weights_from_d2(d2, r, const)
+        if log_tau is not None:
+            a += log_tau[row, t]
+        if log_k is not None:
+            a += log_k[row, plat]
+        kept = _gate_block(a, row, plat, lo, hi, M, margin)
+        if kept is None:
+            return None
+        keep, best = kept
+        if keep is not None:
+            row, t, plat, a = row[keep], t[keep], plat[keep], a[keep]
+        local = row - lo
+        a -= best[local]
+        np.exp(a, out=a)
+        s = np.bincount(local, weights=a, minlength=hi - lo)
+        a *= (1.0 / s)[local]
+        lse[lo:hi] = best + np.log(s)
+        rows.append(row)
+        cols.append(t * M + plat)
+        values.append(a)
+    if not rows:
+        return None
+    return _assemble(z, np.concatenate(rows), np.concatenate(cols), np.concatenate(values), lse, T, M, inputs)
+
+
+def _squared_distances(
+    z: np.ndarray, positions: np.ndarray, row: np.ndarray, t: np.ndarray, plat: np.ndarray
+) -> np.ndarray:
+    """``(zx - px)^2 + (zy - py)^2`` of the triples, elementwise as in the dense E-step."""
+    T = positions.shape[1]
     flat = plat * T + t
-    a = z[:, 0][row] - positions[:, :, 0].ravel()[flat]
-    a *= a
-    dy = z[:, 1][row] - positions[:, :, 1].ravel()[flat]
+    d2 = z[row, 0] - positions[:, :, 0].ravel()[flat]
+    d2 *= d2
+    dy = z[row, 1] - positions[:, :, 1].ravel()[flat]
     dy *= dy
-    a += dy
-    del dy
-    a = log_weights_from_d2(a, r, const)
-    if log_tau is not None:
-        a += log_tau[row, t]
-    if log_k is not None:
-        a += log_k[row, plat]
-    # Candidates come in segments, one per (locale, platform) pair.
-    seg_start = np.zeros(seg_count.size, dtype=np.intp)
-    np.cumsum(seg_count[:-1], out=seg_start[1:])
-    pair_best = np.maximum.reduceat(a, seg_start)
-    best = np.full(N, -np.inf)
-    np.maximum.at(best, seg_row, pair_best)
+    d2 += dy
+    return d2
+
+
+def _gate_block(
+    a: np.ndarray, row: np.ndarray, plat: np.ndarray, lo: int, hi: int, M: int, margin: float
+) -> tuple[np.ndarray | None, np.ndarray] | None:
+    """The gate on one block's log weights ``a``: ``(keep mask or None for all, best per locale)``, or
+    ``None`` if some locale of the block has no finite candidate."""
+    if a.size == 0:
+        return None
+    key = row * M + plat
+    starts = np.flatnonzero(np.concatenate(([True], key[1:] != key[:-1])))
+    pair_best = np.maximum.reduceat(a, starts)
+    pair_count = np.diff(np.append(starts, a.size))
+    best = np.full(hi - lo, -np.inf)
+    np.maximum.at(best, row[starts] - lo, pair_best)
     if not np.all(np.isfinite(best)):
         return None
-    threshold = np.maximum(pair_best - margin, best[seg_row] - _UNDERFLOW)
-    keep = a >= np.repeat(threshold, seg_count)
-    if not np.all(keep):
-        row, t, plat, a = row[keep], t[keep], plat[keep], a[keep]
-    a -= best[row]
-    np.exp(a, out=a)
-    s = np.bincount(row, weights=a, minlength=N)
-    a *= (1.0 / s)[row]
-    return _assemble(z, row, t * M + plat, a, best + np.log(s), T, M, inputs)
+    threshold = np.maximum(pair_best - margin, best[row[starts] - lo] - _UNDERFLOW)
+    keep = a >= np.repeat(threshold, pair_count)
+    return (None if np.all(keep) else keep), best
 
 
-def _candidates(inputs: EStepInputs, margin: float) -> Candidates | None:
-    """The triples worth evaluating, or ``None`` where the gate would keep too many to pay.
+def _assemble(
+    z: np.ndarray,
+    row: np.ndarray,
+    col: np.ndarray,
+    w: np.ndarray,
+    lse: np.ndarray,
+    T: int,
+    M: int,
+    inputs: EStepInputs,
+) -> GatedWeights:
+    """Weights ``w`` of triples at ``(row, col)``, sorted by row, as CSR with the dense layout, and
+    their sums ``W`` and ``WZ`` (each column summed in the order of its rows)."""
+    N = z.shape[0]
+    TM = T * M
+    W = np.bincount(col, weights=w, minlength=TM).reshape(T, M)
+    WZ = np.empty((T, M, 2))
+    WZ[:, :, 0] = np.bincount(col, weights=w * z[row, 0], minlength=TM).reshape(T, M)
+    WZ[:, :, 1] = np.bincount(col, weights=w * z[row, 1], minlength=TM).reshape(T, M)
+    indptr = np.zeros(N + 1, dtype=np.intp)
+    np.cumsum(np.bincount(row, minlength=N), out=indptr[1:])
+    weights = sp.csr_matrix((w, col, indptr), shape=(N, TM))
+    return GatedWeights(weights, W, WZ, lse, inputs)
+
+
+def _choose_source(inputs: EStepInputs, margin: float) -> _TreeCandidates | _SupportCandidates | None:
+    """Where the candidates come from, or ``None`` where the gate would keep too many to pay.
 
     Candidates come from whichever is smaller: the radius queries, or the support of the priors (all
     triples with a non-zero prior, when the priors confine each locale to a few times and platforms,
@@ -146,79 +214,46 @@ def _candidates(inputs: EStepInputs, margin: float) -> Candidates | None:
     n_plats = np.isfinite(log_k).sum(axis=1) if log_k is not None else np.full(N, M)
     support = float(np.sum(n_times * n_plats))
     tree = _TreeCandidates(inputs, margin)
-    if N <= 2 * _GATE_SAMPLE and tree.ok:
-        # Few locales: the estimate would query every one of them, as the candidates do. Query once,
-        # stopping past the budget or the support (the same choice as with the estimate, which is then
-        # exact).
-        found = tree.candidates(min(budget, support - 0.5))
-        if found is not None:
-            return found
-        estimate = math.inf
-    else:
-        estimate = tree.estimate()
+    estimate = tree.estimate()
     if min(support, estimate) > budget:
         return None
     if support <= estimate:
-        return _support_candidates(log_tau, log_k, N, T, M)
-    return tree.candidates(budget)
+        return _SupportCandidates(inputs)
+    return tree
 
 
-def _assemble(
-    z: np.ndarray,
-    row: np.ndarray,
-    col: np.ndarray,
-    w: np.ndarray,
-    lse: np.ndarray,
-    T: int,
-    M: int,
-    inputs: EStepInputs,
-) -> GatedWeights:
-    """Weights ``w`` of triples at ``(row, col)`` as CSR with the dense layout, and their sums."""
-    N = z.shape[0]
-    TM = T * M
-    W = np.bincount(col, weights=w, minlength=TM).reshape(T, M)
-    WZ = np.empty((T, M, 2))
-    WZ[:, :, 0] = np.bincount(col, weights=w * z[row, 0], minlength=TM).reshape(T, M)
-    WZ[:, :, 1] = np.bincount(col, weights=w * z[row, 1], minlength=TM).reshape(T, M)
-    # CSR: the candidates are platform-major, so a stable sort by row is a merge of M sorted runs.
-    order = np.argsort(row, kind="stable")
-    indptr = np.zeros(N + 1, dtype=np.intp)
-    np.cumsum(np.bincount(row, minlength=N), out=indptr[1:])
-    weights = sp.csr_matrix((w[order], col[order], indptr), shape=(N, TM))
-    return GatedWeights(weights, W, WZ, lse, inputs)
+class _SupportCandidates:
+    """Every triple whose priors are non-zero, a block of locales at a time."""
 
+    def __init__(self, inputs: EStepInputs) -> None:
+        M, T, _ = inputs.positions.shape
+        N = inputs.locales.shape[0]
+        lt, lk = inputs.log_time_prior, inputs.log_platform_prior
+        self.ft = np.isfinite(lt) if lt is not None else np.ones((N, T), dtype=bool)
+        self.fk = np.isfinite(lk) if lk is not None else np.ones((N, M), dtype=bool)
 
-Candidates = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-
-
-def _support_candidates(
-    log_tau: np.ndarray | None, log_k: np.ndarray | None, N: int, T: int, M: int
-) -> Candidates:
-    """Every triple whose priors are non-zero: ``(row, t, platform)`` grouped in segments, one per
-    (locale, platform) pair, platform-major, and the segments' ``(length, row)``."""
-    ft = np.isfinite(log_tau) if log_tau is not None else np.ones((N, T), dtype=bool)
-    fk = np.isfinite(log_k) if log_k is not None else np.ones((N, M), dtype=bool)
-    rows, ts, ms, counts, seg_rows = [], [], [], [], []
-    for m in range(M):
-        mask = ft & fk[:, m, None]
-        rr, tt = np.nonzero(mask)
-        rows.append(rr)
-        ts.append(tt)
-        ms.append(np.full(rr.size, m, dtype=np.intp))
-        c = mask.sum(axis=1)
-        counts.append(c[c > 0])
-        seg_rows.append(np.flatnonzero(c))
-    return (
-        np.concatenate(rows),
-        np.concatenate(ts),
-        np.concatenate(ms),
-        np.concatenate(counts),
-        np.concatenate(seg_rows),
-    )
+    def blocks(self) -> Iterator[Block]:
+        """Blocks of candidates (:data:`Block`), without distances."""
+        N, T = self.ft.shape
+        M = self.fk.shape[1]
+        step = max(1, _BLOCK // (T * M))
+        for lo in range(0, N, step):
+            hi = min(lo + step, N)
+            mask = self.fk[lo:hi, :, None] & self.ft[lo:hi, None, :]
+            n, m, t = np.nonzero(mask)
+            yield lo, hi, n + lo, t, m, None
 
 
 class _TreeCandidates:
-    """Candidate triples from a KD-tree per platform (module docstring)."""
+    """Candidate triples within each (locale, platform) pair's radius (module docstring).
+
+    A KD-tree per platform gives each pair's nearest path point, hence its radius. The points within
+    the radius are then found a block of locales at a time: each path's points, in the tree's order,
+    are cut into chunks of :data:`_CHUNK`, a chunk is skipped when its bounding disc lies outside the
+    pair's radius, and the points of the others are measured directly (their squared distances are
+    kept for the log weights). Radius queries of the trees would give the same candidates in the
+    same order, but as Python lists, whose cost dominates once there are millions of candidates.
+    """
 
     def __init__(self, inputs: EStepInputs, margin: float) -> None:
         z, positions, r = inputs.locales, inputs.positions, inputs.r
@@ -226,6 +261,7 @@ class _TreeCandidates:
         M = positions.shape[0]
         N = z.shape[0]
         self.z = z
+        self.positions = positions
         self.trees = [cKDTree(positions[m], balanced_tree=False, compact_nodes=False) for m in range(M)]
         inv2r = 0.5 / r
         rows = np.arange(N)
@@ -260,11 +296,12 @@ class _TreeCandidates:
             rho2 = 2.0 * r * (upper - np.maximum(lower_nm, floor) + (margin + _GATE_SLACK))
         self.ok = bool(np.all(np.isfinite(lower)))
         self.query = reach & np.isfinite(rho2) & (rho2 >= 0)
-        self.radius = np.sqrt(np.where(self.query, rho2, 0.0))
+        self.rho2 = np.where(self.query, rho2, 0.0)
+        self.radius = np.sqrt(self.rho2)
 
     def estimate(self) -> float:
-        """Expected number of candidates (from a sample of locales when there are many); inf if the
-        bound cannot place every locale."""
+        """Expected number of candidates: exact for up to ``2 * _GATE_SAMPLE`` locales, else from a
+        sample of them; inf if the bound cannot place every locale."""
         if not self.ok:
             return math.inf
         N = self.z.shape[0]
@@ -279,35 +316,67 @@ class _TreeCandidates:
                 count += float(np.sum(lengths))
         return count * N / sample.size
 
-    def candidates(self, budget: float) -> Candidates | None:
-        """Every triple within its pair's radius, as :func:`_support_candidates` returns them (empty
-        arrays when no pair is queried), or ``None`` past ``budget``."""
-        rows_parts: list[np.ndarray] = []
-        t_parts: list[np.ndarray] = []
-        m_parts: list[np.ndarray] = []
-        count_parts: list[np.ndarray] = []
-        seg_parts: list[np.ndarray] = []
-        total = 0
-        for m, tree in enumerate(self.trees):
-            q = np.flatnonzero(self.query[:, m])
-            if q.size == 0:
-                continue
-            counts, ts = _ball_lists(tree, self.z[q], self.radius[q, m])
-            total += ts.size
-            if total > budget:
-                return None
-            rows_parts.append(np.repeat(q, counts))
-            t_parts.append(ts)
-            m_parts.append(np.full(ts.size, m, dtype=np.intp))
-            count_parts.append(counts[counts > 0])
-            seg_parts.append(q[counts > 0])
-        if not rows_parts:  # no pair to query: no candidate (the caller then runs the dense E-step)
-            empty = np.zeros(0, dtype=np.intp)
-            return empty, empty, empty, empty, empty
-        return (
-            np.concatenate(rows_parts),
-            np.concatenate(t_parts),
-            np.concatenate(m_parts),
-            np.concatenate(count_parts),
-            np.concatenate(seg_parts),
-        )
+    def _chunks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The path points in the trees' order, in chunks ``(M, K, C, 2)`` (padded with infinite
+        points, which no radius reaches), the time of each ``(M, K * C)``, and each chunk's bounding
+        disc: centres ``(M, K, 2)`` and radii ``(M, K)``.
+
+        A tree keeps its points leaf by leaf, so consecutive points are close in space and the chunks
+        are compact; and within a pair the candidates come in the order in which a radius query of
+        the tree lists them, so every sum over them is formed in that order.
+        """
+        M, T, _ = self.positions.shape
+        K = -(-T // _CHUNK)
+        pad = K * _CHUNK - T
+        order = np.stack([tree.indices for tree in self.trees])  # (M, T)
+        ordered = np.take_along_axis(self.positions, order[..., None], axis=1)
+        points = np.concatenate([ordered, np.full((M, pad, 2), np.inf)], axis=1)
+        edge = np.concatenate([ordered, np.repeat(ordered[:, -1:], pad, axis=1)], axis=1)
+        edge = edge.reshape(M, K, _CHUNK, 2)
+        low, high = edge.min(axis=2), edge.max(axis=2)
+        centre = 0.5 * (low + high)
+        half = 0.5 * np.hypot(high[..., 0] - low[..., 0], high[..., 1] - low[..., 1])
+        times = np.concatenate([order, np.zeros((M, pad), dtype=order.dtype)], axis=1)
+        return points.reshape(M, K, _CHUNK, 2), times, centre, half
+
+    def blocks(self) -> Iterator[Block]:
+        """Blocks of candidates (:data:`Block`) with their squared distances."""
+        z = self.z
+        N = z.shape[0]
+        points, times, centre, half = self._chunks()
+        K = centre.shape[1]
+        pair_n, pair_m = np.nonzero(self.query)  # sorted by (locale, platform)
+        rho2 = self.rho2[pair_n, pair_m]
+        radius = self.radius[pair_n, pair_m]
+        # Chunks whose bounding disc meets the pair's disc (with room for rounding), a slab of pairs
+        # at a time.
+        hits = np.empty((pair_n.size, K), dtype=bool)
+        slab = max(1, _BLOCK // K)
+        for p0 in range(0, pair_n.size, slab):
+            p1 = min(p0 + slab, pair_n.size)
+            m = pair_m[p0:p1]
+            dx = z[pair_n[p0:p1], 0, None] - centre[m, :, 0]
+            dy = z[pair_n[p0:p1], 1, None] - centre[m, :, 1]
+            reach = (radius[p0:p1, None] + half[m]) * (1.0 + 1e-9)
+            hits[p0:p1] = dx * dx + dy * dy <= reach * reach
+        # Blocks of whole locales, about _BLOCK points each.
+        per_locale = np.bincount(pair_n, weights=hits.sum(axis=1), minlength=N) * _CHUNK
+        pair_start = np.searchsorted(pair_n, np.arange(N + 1))
+        lo = 0
+        while lo < N:
+            hi = int(np.searchsorted(np.cumsum(per_locale[lo:]), _BLOCK, side="right")) + lo
+            hi = min(max(hi, lo + 1), N)
+            p0, p1 = int(pair_start[lo]), int(pair_start[hi])
+            ph, kh = np.nonzero(hits[p0:p1])
+            ph += p0
+            n, m = pair_n[ph], pair_m[ph]
+            pts = points[m, kh]  # (hits, C, 2)
+            d2 = z[n, 0, None] - pts[..., 0]
+            d2 *= d2
+            dy = z[n, 1, None] - pts[..., 1]
+            dy *= dy
+            d2 += dy
+            inside = d2 <= rho2[ph, None]
+            h, c = np.nonzero(inside)
+            yield lo, hi, n[h], times[m[h], kh[h] * _CHUNK + c], m[h], d2[inside]
+            lo = hi

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from typing import Any
 
 import numpy as np
@@ -175,41 +176,72 @@ def test_smoothed_plan_gated_equals_dense() -> None:
     np.testing.assert_array_equal(gated.visit_time, dense.visit_time)
 
 
+def _brute_candidates(z: np.ndarray, pos: np.ndarray, query: np.ndarray, rho2: np.ndarray) -> np.ndarray:
+    """``(n, m, t)`` of every triple within its queried pair's radius, by measuring all of them."""
+    d2 = (z[:, None, None, 0] - pos[None, :, :, 0]) ** 2 + (z[:, None, None, 1] - pos[None, :, :, 1]) ** 2
+    return np.argwhere(query[:, :, None] & (d2 <= rho2[:, :, None]))
+
+
 @pytest.mark.parametrize("prior", ["uniform", "dirichlet", "windows"])
 @pytest.mark.parametrize("r", [0.002, 0.05, 1.0])
-def test_few_locales_choose_candidates_as_an_exact_estimate_would(prior: str, r: float) -> None:
+def test_few_locales_choose_candidates_as_an_exact_count_would(prior: str, r: float) -> None:
     from pmht_opt import gating
     from pmht_opt.likelihood import EStepInputs
 
     z, pos, lt, lk, _ = _case(4, prior, r)
     z, lt, lk = z[:100], None if lt is None else lt[:100], None if lk is None else lk[:100]
     N, (M, T, _) = z.shape[0], pos.shape
-    assert N <= 2 * gating._GATE_SAMPLE  # the branch that queries every locale once
+    assert N <= 2 * gating._GATE_SAMPLE  # the estimate counts every locale
     inputs = EStepInputs(z, pos, lt, lk, r)
     margin = gate_margin("auto", T, M)
     assert margin is not None
-    got = gating._candidates(inputs, margin)
+    got = gating._choose_source(inputs, margin)
     # The rule with the exact number of tree candidates: none past the budget, else the smaller set.
     budget = gating.GATE_MAX_FRACTION * N * T * M
     n_times = np.isfinite(lt).sum(axis=1) if lt is not None else np.full(N, T)
     n_plats = np.isfinite(lk).sum(axis=1) if lk is not None else np.full(N, M)
     support = float(np.sum(n_times * n_plats))
-    tree_all = gating._TreeCandidates(inputs, margin).candidates(np.inf)
-    assert tree_all is not None
-    exact = tree_all[0].size
+    tree = gating._TreeCandidates(inputs, margin)
+    exact = len(_brute_candidates(z, pos, tree.query, tree.rho2))
     lo = np.minimum(z.min(axis=0), pos.min(axis=(0, 1)))
     area = float(np.prod(np.maximum(z.max(axis=0), pos.max(axis=(0, 1))) - lo))
     if lt is None and np.pi * 2.0 * r * margin > gating.GATE_MAX_FRACTION * area:
-        want = None
-    elif min(support, exact) > budget:
-        want = None
-    elif support <= exact:
-        want = gating._support_candidates(lt, lk, N, T, M)
-    else:
-        want = tree_all
-    if want is None:
         assert got is None
+    elif min(support, exact) > budget:
+        assert got is None
+    elif support <= exact:
+        assert isinstance(got, gating._SupportCandidates)
     else:
-        assert got is not None
-        for a, b in zip(got, want, strict=True):
-            np.testing.assert_array_equal(a, b)
+        assert isinstance(got, gating._TreeCandidates)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("block", [64, 1 << 18])
+def test_chunked_search_finds_what_radius_queries_find(seed: int, block: int, monkeypatch: Any) -> None:
+    """The chunk search returns exactly the triples within each pair's radius, in the order of the
+    trees' radius queries (so every sum over them is formed as before), with the dense E-step's
+    squared distances; also when blocks split the locales and the horizon is not a whole number of
+    chunks."""
+    from pmht_opt import gating
+    from pmht_opt.likelihood import EStepInputs
+
+    monkeypatch.setattr(gating, "_BLOCK", block)
+    z, pos, _, _, _ = _case(seed, "uniform", 0.01)
+    pos = pos[:, : pos.shape[1] - 7]
+    tree = gating._TreeCandidates(EStepInputs(z, pos, None, None, 0.01), 60.0)
+    blocks = list(tree.blocks())
+    assert blocks[0][0] == 0 and blocks[-1][1] == z.shape[0]
+    assert all(a[1] == b[0] for a, b in itertools.pairwise(blocks))
+    assert (len(blocks) > 1) == (block == 64)
+    row = np.concatenate([b[2] for b in blocks])
+    t = np.concatenate([b[3] for b in blocks])
+    plat = np.concatenate([b[4] for b in blocks])
+    want = []
+    for n, m in zip(*np.nonzero(tree.query), strict=True):
+        found = tree.trees[m].query_ball_point(z[n], tree.radius[n, m], return_sorted=False)
+        want.extend((n, m, i) for i in found)
+    assert len(want) > 0
+    np.testing.assert_array_equal(np.column_stack([row, plat, t]), np.array(want))
+    d2 = np.concatenate([b[5] for b in blocks])
+    dx, dy = z[row, 0] - pos[plat, t, 0], z[row, 1] - pos[plat, t, 1]
+    np.testing.assert_array_equal(d2, dx * dx + dy * dy)
