@@ -52,6 +52,11 @@ class EStepResult:
     n_platforms: int
     #: The E-step's inputs, kept by a gated E-step to recompute rows exactly.
     inputs: EStepInputs | None = field(default=None, repr=False, compare=False)
+    #: Computed by a gated E-step on the way, so as not to pass over the sparse weights again:
+    #: ``sum_t w[n, t, m]`` ``(N, M)``, each row's column of largest weight and that weight.
+    platform_totals: np.ndarray | None = field(default=None, repr=False, compare=False)
+    best_column: np.ndarray | None = field(default=None, repr=False, compare=False)
+    largest: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def gated(self) -> bool:
@@ -114,6 +119,8 @@ class EStepResult:
 
     def platform_prior(self) -> np.ndarray:
         """Updated ``pi^k[n, m] = sum_t w[n, t, m]`` (eq. 12), ``(N, M)``."""
+        if self.platform_totals is not None:
+            return self.platform_totals.copy()
         if self.gated:
             N, M = self.weights.shape[0], self.n_platforms
             rows, cols, vals = self._triples()
@@ -122,6 +129,8 @@ class EStepResult:
 
     def _argmax(self) -> np.ndarray:
         """Column of each row's largest weight (the first one among ties, as ``np.argmax``)."""
+        if self.best_column is not None:
+            return self.best_column
         w = self.weights
         if isinstance(w, sp.csr_matrix):
             starts = w.indptr[:-1]
@@ -138,6 +147,8 @@ class EStepResult:
 
     def max_weight(self) -> np.ndarray:
         """``(N,)`` the weight of each locale's most probable ``(time, platform)``."""
+        if self.largest is not None:
+            return self.largest.copy()
         w = self.weights
         if isinstance(w, sp.csr_matrix):
             return np.maximum.reduceat(w.data, w.indptr[:-1])
@@ -243,8 +254,17 @@ def estep(
     if margin is not None:
         gated = estep_gated(inputs, margin)
         if gated is not None:
-            w, W_, WZ_, lse_, inputs = gated
-            return EStepResult(weights=w, W=W_, WZ=WZ_, log_normaliser=lse_, n_platforms=M, inputs=inputs)
+            return EStepResult(
+                weights=gated.weights,
+                W=gated.W,
+                WZ=gated.WZ,
+                log_normaliser=gated.log_normaliser,
+                n_platforms=M,
+                inputs=gated.inputs,
+                platform_totals=gated.platform_prior,
+                best_column=gated.best_column,
+                largest=gated.max_weight,
+            )
     TM = T * M
     w = np.empty((N, TM))
     lse = np.empty(N)

@@ -64,13 +64,21 @@ def gate_margin(gate: float | str | None, T: int, M: int) -> float | None:
 
 
 class GatedWeights(NamedTuple):
-    """What the gated E-step computes: sparse weights with the dense layout and their statistics."""
+    """What the gated E-step computes: sparse weights with the dense layout and their statistics.
+
+    ``platform_prior`` (``sum_t w[n, t, m]``), ``best_column`` (each row's column of largest weight,
+    the first among ties) and ``max_weight`` are those of ``weights``, computed block by block on the
+    way (their sums in the order a pass over ``weights`` would form them).
+    """
 
     weights: sp.csr_matrix
     W: np.ndarray
     WZ: np.ndarray
     log_normaliser: np.ndarray
     inputs: EStepInputs
+    platform_prior: np.ndarray
+    best_column: np.ndarray
+    max_weight: np.ndarray
 
 
 #: A block of candidates: ``(lo, hi, row, t, platform, d2)`` for the locales ``lo .. hi - 1``, sorted by
@@ -95,8 +103,7 @@ def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
     N = z.shape[0]
     budget = GATE_MAX_FRACTION * N * T * M
     const = log_const(r, T, M, log_tau is None, log_k is None)
-    lse = np.empty(N)
-    rows, cols, values = [], [], []
+    out = _Accumulator(N, T, M)
     total = 0
     for lo, hi, row, t, plat, d2 in source.blocks():
         total += row.size
@@ -121,13 +128,10 @@ def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
         np.exp(a, out=a)
         s = np.bincount(local, weights=a, minlength=hi - lo)
         a *= (1.0 / s)[local]
-        lse[lo:hi] = best + np.log(s)
-        rows.append(row)
-        cols.append(t * M + plat)
-        values.append(a)
-    if not rows:
+        out.add(lo, hi, z, local, t, plat, a, best + np.log(s))
+    if out.empty:
         return None
-    return _assemble(z, np.concatenate(rows), np.concatenate(cols), np.concatenate(values), lse, T, M, inputs)
+    return out.result(inputs)
 
 
 def _squared_distances(
@@ -164,28 +168,80 @@ def _gate_block(
     return (None if np.all(keep) else keep), best
 
 
-def _assemble(
-    z: np.ndarray,
-    row: np.ndarray,
-    col: np.ndarray,
-    w: np.ndarray,
-    lse: np.ndarray,
-    T: int,
-    M: int,
-    inputs: EStepInputs,
-) -> GatedWeights:
-    """Weights ``w`` of triples at ``(row, col)``, sorted by row, as CSR with the dense layout, and
-    their sums ``W`` and ``WZ`` (each column summed in the order of its rows)."""
-    N = z.shape[0]
-    TM = T * M
-    W = np.bincount(col, weights=w, minlength=TM).reshape(T, M)
-    WZ = np.empty((T, M, 2))
-    WZ[:, :, 0] = np.bincount(col, weights=w * z[row, 0], minlength=TM).reshape(T, M)
-    WZ[:, :, 1] = np.bincount(col, weights=w * z[row, 1], minlength=TM).reshape(T, M)
-    indptr = np.zeros(N + 1, dtype=np.intp)
-    np.cumsum(np.bincount(row, minlength=N), out=indptr[1:])
-    weights = sp.csr_matrix((w, col, indptr), shape=(N, TM))
-    return GatedWeights(weights, W, WZ, lse, inputs)
+class _Accumulator:
+    """The gated E-step's outputs, filled a block of locales at a time (blocks in order).
+
+    Each sum is formed in the order of the triples (by locale, then platform, then as the tree
+    lists them), the order in which one pass over all of them forms it: ``np.add.at`` adds in order
+    to what the earlier blocks left, as a single ``np.bincount`` would. Nothing the size of all the
+    triples is allocated but the weights and their columns, which the CSR matrix keeps.
+    """
+
+    def __init__(self, N: int, T: int, M: int) -> None:
+        self.N, self.T, self.M = N, T, M
+        TM = T * M
+        self.W = np.zeros(TM)
+        self.WZ = np.zeros((2, TM))
+        self.lse = np.empty(N)
+        self.platform = np.empty((N, M))
+        self.best_column = np.empty(N, dtype=np.intp)
+        self.max_weight = np.empty(N)
+        self.indptr = np.zeros(N + 1, dtype=np.intp)
+        self.cols: list[np.ndarray] = []
+        self.values: list[np.ndarray] = []
+
+    @property
+    def empty(self) -> bool:
+        """Whether no block was added."""
+        return not self.values
+
+    def add(
+        self,
+        lo: int,
+        hi: int,
+        z: np.ndarray,
+        local: np.ndarray,
+        t: np.ndarray,
+        plat: np.ndarray,
+        w: np.ndarray,
+        lse: np.ndarray,
+    ) -> None:
+        """The normalised weights ``w`` of locales ``lo .. hi - 1`` (rows ``lo + local``, sorted) at
+        times ``t`` and platforms ``plat``, with the rows' log-normalisers."""
+        M, TM, n = self.M, self.T * self.M, hi - lo
+        col = t * M + plat
+        np.add.at(self.W, col, w)
+        np.add.at(self.WZ[0], col, w * z[lo + local, 0])
+        np.add.at(self.WZ[1], col, w * z[lo + local, 1])
+        self.lse[lo:hi] = lse
+        self.platform[lo:hi] = np.bincount(local * M + plat, weights=w, minlength=n * M).reshape(n, M)
+        counts = np.bincount(local, minlength=n)
+        starts = np.zeros(n, dtype=np.intp)
+        np.cumsum(counts[:-1], out=starts[1:])
+        best = np.maximum.reduceat(w, starts)
+        self.max_weight[lo:hi] = best
+        self.best_column[lo:hi] = np.minimum.reduceat(np.where(w == best[local], col, TM), starts)
+        self.indptr[lo + 1 : hi + 1] = counts
+        self.cols.append(col)
+        self.values.append(w)
+
+    def result(self, inputs: EStepInputs) -> GatedWeights:
+        """The weights as CSR with the dense layout, and everything computed with them."""
+        N, T, M = self.N, self.T, self.M
+        np.cumsum(self.indptr, out=self.indptr)
+        weights = sp.csr_matrix(
+            (np.concatenate(self.values), np.concatenate(self.cols), self.indptr), shape=(N, T * M)
+        )
+        return GatedWeights(
+            weights,
+            self.W.reshape(T, M),
+            self.WZ.T.reshape(T, M, 2),
+            self.lse,
+            inputs,
+            self.platform,
+            self.best_column,
+            self.max_weight,
+        )
 
 
 def _choose_source(inputs: EStepInputs, margin: float) -> _TreeCandidates | _SupportCandidates | None:

@@ -245,3 +245,19 @@ def test_chunked_search_finds_what_radius_queries_find(seed: int, block: int, mo
     d2 = np.concatenate([b[5] for b in blocks])
     dx, dy = z[row, 0] - pos[plat, t, 0], z[row, 1] - pos[plat, t, 1]
     np.testing.assert_array_equal(d2, dx * dx + dy * dy)
+
+
+@pytest.mark.parametrize("prior", ["uniform", "dirichlet", "windows"])
+def test_statistics_of_the_gated_estep_equal_a_pass_over_its_weights(prior: str) -> None:
+    """The platform prior, MAP assignment and largest weights the gated E-step computes block by block
+    are bit for bit those of a pass over its sparse weights."""
+    import dataclasses
+
+    z, pos, lt, lk, r = _case(7, prior, 0.01)
+    es = estep(z, pos, lt, lk, r, gate="auto")
+    assert es.gated and es.platform_totals is not None
+    bare = dataclasses.replace(es, platform_totals=None, best_column=None, largest=None)
+    np.testing.assert_array_equal(es.platform_prior(), bare.platform_prior())
+    np.testing.assert_array_equal(es.max_weight(), bare.max_weight())
+    for a, b in zip(es.map_assignment(), bare.map_assignment(), strict=True):
+        np.testing.assert_array_equal(a, b)
