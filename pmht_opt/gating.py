@@ -103,7 +103,7 @@ def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
     N = z.shape[0]
     budget = GATE_MAX_FRACTION * N * T * M
     const = log_const(r, T, M, log_tau is None, log_k is None)
-    out = _Accumulator(N, T, M)
+    out = _Accumulator(N, T, M, budget)
     total = 0
     for lo, hi, row, t, plat, d2 in source.blocks():
         total += row.size
@@ -177,7 +177,7 @@ class _Accumulator:
     triples is allocated but the weights and their columns, which the CSR matrix keeps.
     """
 
-    def __init__(self, N: int, T: int, M: int) -> None:
+    def __init__(self, N: int, T: int, M: int, budget: float) -> None:
         self.N, self.T, self.M = N, T, M
         TM = T * M
         self.W = np.zeros(TM)
@@ -186,7 +186,9 @@ class _Accumulator:
         self.platform = np.empty((N, M))
         self.best_column = np.empty(N, dtype=np.intp)
         self.max_weight = np.empty(N)
-        self.indptr = np.zeros(N + 1, dtype=np.intp)
+        # The CSR's index type, chosen here (as scipy would) so that it keeps the arrays as they are.
+        self.index_dtype = np.int32 if max(N, T * M, budget) < np.iinfo(np.int32).max else np.int64
+        self.indptr = np.zeros(N + 1, dtype=self.index_dtype)
         self.cols: list[np.ndarray] = []
         self.values: list[np.ndarray] = []
 
@@ -209,7 +211,7 @@ class _Accumulator:
         """The normalised weights ``w`` of locales ``lo .. hi - 1`` (rows ``lo + local``, sorted) at
         times ``t`` and platforms ``plat``, with the rows' log-normalisers."""
         M, TM, n = self.M, self.T * self.M, hi - lo
-        col = t * M + plat
+        col = (t * M + plat).astype(self.index_dtype)
         np.add.at(self.W, col, w)
         np.add.at(self.WZ[0], col, w * z[lo + local, 0])
         np.add.at(self.WZ[1], col, w * z[lo + local, 1])
@@ -333,16 +335,19 @@ class _TreeCandidates:
         dmin2 = np.zeros((N, M))
         with np.errstate(invalid="ignore"):
             for m in range(M):
-                if log_k is not None and not np.any(np.isfinite(lk[:, m])):
+                # Pairs with a zero platform prior keep a bound of -inf: no triple of theirs is kept.
+                q = rows if log_k is None else np.flatnonzero(np.isfinite(lk[:, m]))
+                if q.size == 0:
                     continue
-                d, tn = self.trees[m].query(z)
-                dmin2[:, m] = d * d
-                lt_at = log_tau[rows, tn] if log_tau is not None else 0.0
-                lower_nm[:, m] = lt_at + lk[:, m] - dmin2[:, m] * inv2r
+                d, tn = self.trees[m].query(z[q])
+                dmin2[q, m] = d * d
+                lt_at = log_tau[q, tn] if log_tau is not None else 0.0
+                low = lt_at + lk[q, m] - dmin2[q, m] * inv2r
                 if log_tau is not None:
-                    dp = z - positions[m, t_peak]
-                    peak = lt_max + lk[:, m] - np.einsum("ij,ij->i", dp, dp) * inv2r
-                    np.maximum(lower_nm[:, m], peak, out=lower_nm[:, m])
+                    dp = z[q] - positions[m, t_peak[q]]
+                    peak = lt_max[q] + lk[q, m] - np.einsum("ij,ij->i", dp, dp) * inv2r
+                    np.maximum(low, peak, out=low)
+                lower_nm[q, m] = low
             lower = lower_nm.max(axis=1)
             # Triples below lower - _UNDERFLOW are dropped whatever their pair's best.
             floor = lower[:, None] - (_UNDERFLOW + _GATE_SLACK)
