@@ -5,43 +5,35 @@ With ``gate=G`` a triple is dropped when its log weight is more than ``G`` nats 
 (locale, platform) pair, or more than 746 below its locale's best (where the dense computation's ``exp``
 underflows to exactly zero anyway). A KD-tree per platform gives each pair's nearest path point, whose
 log weight (priors included) bounds the pair's best from below, and a triple can only be kept if its
-distance satisfies ``d^2 <= 2r (max_t log pi^tau + log pi^k - bound + G)``, which a radius query
-returns. Gating per pair, not per locale, keeps every platform's share ``pi^k[n, m] = sum_t w[n, t, m]``
-exact down to the underflow, however small: the re-estimated platform prior can then revive a platform
-exactly as in the dense EM. With ``G = log(T M) + 37`` (``"auto"``) the mass dropped from a pair is below
-``exp(-37) < 1e-16`` of it: ``W``, ``WZ``, the normalisers and ``pi^k`` equal the dense ones to rounding.
-The time prior's re-estimate ``pi^tau[n, t] = sum_m w[n, t, m]`` is exact only where some triple of
-``(n, t)`` is kept (zero elsewhere, not tiny). Where the gate would admit too much (a wide ``r``, early
-in annealing) the caller runs the dense computation instead.
+distance satisfies ``d^2 <= 2r (max_t log pi^tau + log pi^k - bound + G)``: the candidates are the
+path points within that radius (:mod:`pmht_opt.candidates`). Gating per pair, not per locale, keeps
+every platform's share ``pi^k[n, m] = sum_t w[n, t, m]`` exact down to the underflow, however small:
+the re-estimated platform prior can then revive a platform exactly as in the dense EM. With
+``G = log(T M) + 37`` (``"auto"``) the mass dropped from a pair is below ``exp(-37) < 1e-16`` of it:
+``W``, ``WZ``, the normalisers and ``pi^k`` equal the dense ones to rounding. The time prior's
+re-estimate ``pi^tau[n, t] = sum_m w[n, t, m]`` is exact only where some triple of ``(n, t)`` is kept
+(zero elsewhere, not tiny). Where the gate would admit too much (a wide ``r``, early in annealing) the
+caller runs the dense computation instead.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
+from pmht_opt.candidates import SupportCandidates, TreeCandidates
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.likelihood import _SAFE_SCALE, _UNDERFLOW, EStepInputs, log_const, log_weights_from_d2
 
 #: ``gate="auto"``: the margin is ``log(T M) + GATE_AUTO_NATS``, so the mass dropped from a (locale,
 #: platform) pair is below ``exp(-GATE_AUTO_NATS)`` (8.5e-17) of it, under half the float64 epsilon.
 GATE_AUTO_NATS = 37.0
-#: Extra nats on the candidate radius so that rounding in the bound can never lose a kept triple.
-_GATE_SLACK = 1.0
 #: The gated E-step runs when it would keep at most this fraction of the ``N T M`` triples: a candidate
 #: triple costs several times a dense one (docs/decisions.md section 6.1).
 GATE_MAX_FRACTION = 0.1
-#: Locales sampled to estimate the number of candidates before committing to the gated E-step.
-_GATE_SAMPLE = 64
-#: Path points per chunk of the candidate search (:class:`_TreeCandidates`).
-_CHUNK = 32
-#: Path points (or triples) handled per block of locales: a block's arrays stay a few MiB.
-_BLOCK = 1 << 18
 
 
 def gate_margin(gate: float | str | None, T: int, M: int) -> float | None:
@@ -79,11 +71,6 @@ class GatedWeights(NamedTuple):
     platform_prior: np.ndarray
     best_column: np.ndarray
     max_weight: np.ndarray
-
-
-#: A block of candidates: ``(lo, hi, row, t, platform, d2)`` for the locales ``lo .. hi - 1``, sorted by
-#: locale, then platform; ``d2`` the squared distances where the source computed them, else ``None``.
-Block = tuple[int, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
 
 
 def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
@@ -246,12 +233,12 @@ class _Accumulator:
         )
 
 
-def _choose_source(inputs: EStepInputs, margin: float) -> _TreeCandidates | _SupportCandidates | None:
+def _choose_source(inputs: EStepInputs, margin: float) -> TreeCandidates | SupportCandidates | None:
     """Where the candidates come from, or ``None`` where the gate would keep too many to pay.
 
-    Candidates come from whichever is smaller: the radius queries, or the support of the priors (all
-    triples with a non-zero prior, when the priors confine each locale to a few times and platforms,
-    as in :func:`~pmht_opt.plan_smoothed`).
+    Candidates come from whichever is smaller: the points within the pairs' radii, or the support of
+    the priors (all triples with a non-zero prior, when the priors confine each locale to a few times
+    and platforms, as in :func:`~pmht_opt.plan_smoothed`).
     """
     z, positions, r = inputs.locales, inputs.positions, inputs.r
     log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
@@ -271,173 +258,10 @@ def _choose_source(inputs: EStepInputs, margin: float) -> _TreeCandidates | _Sup
     n_times = np.isfinite(log_tau).sum(axis=1) if log_tau is not None else np.full(N, T)
     n_plats = np.isfinite(log_k).sum(axis=1) if log_k is not None else np.full(N, M)
     support = float(np.sum(n_times * n_plats))
-    tree = _TreeCandidates(inputs, margin)
+    tree = TreeCandidates(inputs, margin)
     estimate = tree.estimate()
     if min(support, estimate) > budget:
         return None
     if support <= estimate:
-        return _SupportCandidates(inputs)
+        return SupportCandidates(inputs)
     return tree
-
-
-class _SupportCandidates:
-    """Every triple whose priors are non-zero, a block of locales at a time."""
-
-    def __init__(self, inputs: EStepInputs) -> None:
-        M, T, _ = inputs.positions.shape
-        N = inputs.locales.shape[0]
-        lt, lk = inputs.log_time_prior, inputs.log_platform_prior
-        self.ft = np.isfinite(lt) if lt is not None else np.ones((N, T), dtype=bool)
-        self.fk = np.isfinite(lk) if lk is not None else np.ones((N, M), dtype=bool)
-
-    def blocks(self) -> Iterator[Block]:
-        """Blocks of candidates (:data:`Block`), without distances."""
-        N, T = self.ft.shape
-        M = self.fk.shape[1]
-        step = max(1, _BLOCK // (T * M))
-        for lo in range(0, N, step):
-            hi = min(lo + step, N)
-            mask = self.fk[lo:hi, :, None] & self.ft[lo:hi, None, :]
-            n, m, t = np.nonzero(mask)
-            yield lo, hi, n + lo, t, m, None
-
-
-class _TreeCandidates:
-    """Candidate triples within each (locale, platform) pair's radius (module docstring).
-
-    A KD-tree per platform gives each pair's nearest path point, hence its radius. The points within
-    the radius are then found a block of locales at a time: each path's points, in the tree's order,
-    are cut into chunks of :data:`_CHUNK`, a chunk is skipped when its bounding disc lies outside the
-    pair's radius, and the points of the others are measured directly (their squared distances are
-    kept for the log weights). Radius queries of the trees would give the same candidates in the
-    same order, but as Python lists, whose cost dominates once there are millions of candidates.
-    """
-
-    def __init__(self, inputs: EStepInputs, margin: float) -> None:
-        z, positions, r = inputs.locales, inputs.positions, inputs.r
-        log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
-        M = positions.shape[0]
-        N = z.shape[0]
-        self.z = z
-        self.positions = positions
-        self.trees = [cKDTree(positions[m], balanced_tree=False, compact_nodes=False) for m in range(M)]
-        inv2r = 0.5 / r
-        rows = np.arange(N)
-        if log_tau is not None:
-            t_peak = np.argmax(log_tau, axis=1)
-            lt_max = log_tau[rows, t_peak]
-        else:
-            lt_max = np.zeros(N)
-        lk = log_k if log_k is not None else np.zeros((N, M))
-        # Lower bounds on each (locale, platform) pair's best log weight (without the common constant):
-        # the exact log weight at the platform's nearest path point and at the time prior's peak.
-        lower_nm = np.full((N, M), -np.inf)
-        dmin2 = np.zeros((N, M))
-        with np.errstate(invalid="ignore"):
-            for m in range(M):
-                # Pairs with a zero platform prior keep a bound of -inf: no triple of theirs is kept.
-                q = rows if log_k is None else np.flatnonzero(np.isfinite(lk[:, m]))
-                if q.size == 0:
-                    continue
-                d, tn = self.trees[m].query(z[q])
-                dmin2[q, m] = d * d
-                lt_at = log_tau[q, tn] if log_tau is not None else 0.0
-                low = lt_at + lk[q, m] - dmin2[q, m] * inv2r
-                if log_tau is not None:
-                    dp = z[q] - positions[m, t_peak[q]]
-                    peak = lt_max[q] + lk[q, m] - np.einsum("ij,ij->i", dp, dp) * inv2r
-                    np.maximum(low, peak, out=low)
-                lower_nm[q, m] = low
-            lower = lower_nm.max(axis=1)
-            # Triples below lower - _UNDERFLOW are dropped whatever their pair's best.
-            floor = lower[:, None] - (_UNDERFLOW + _GATE_SLACK)
-            upper = lt_max[:, None] + lk  # bound on log pi^tau + log pi^k of the pair
-            reach = upper - dmin2 * inv2r >= floor
-            # A triple can be kept only if -d^2/2r + log pi^tau + log pi^k >= max(pair bound, floor) - G.
-            rho2 = 2.0 * r * (upper - np.maximum(lower_nm, floor) + (margin + _GATE_SLACK))
-        self.ok = bool(np.all(np.isfinite(lower)))
-        self.query = reach & np.isfinite(rho2) & (rho2 >= 0)
-        self.rho2 = np.where(self.query, rho2, 0.0)
-        self.radius = np.sqrt(self.rho2)
-
-    def estimate(self) -> float:
-        """Expected number of candidates: exact for up to ``2 * _GATE_SAMPLE`` locales, else from a
-        sample of them; inf if the bound cannot place every locale."""
-        if not self.ok:
-            return math.inf
-        N = self.z.shape[0]
-        sample = np.arange(N)
-        if N > 2 * _GATE_SAMPLE:
-            sample = np.random.default_rng(N).choice(N, _GATE_SAMPLE, replace=False)
-        count = 0.0
-        for m, tree in enumerate(self.trees):
-            q = sample[self.query[sample, m]]
-            if q.size:
-                lengths = tree.query_ball_point(self.z[q], self.radius[q, m], return_length=True)
-                count += float(np.sum(lengths))
-        return count * N / sample.size
-
-    def _chunks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The path points in the trees' order, in chunks ``(M, K, C, 2)`` (padded with infinite
-        points, which no radius reaches), the time of each ``(M, K * C)``, and each chunk's bounding
-        disc: centres ``(M, K, 2)`` and radii ``(M, K)``.
-
-        A tree keeps its points leaf by leaf, so consecutive points are close in space and the chunks
-        are compact; and within a pair the candidates come in the order in which a radius query of
-        the tree lists them, so every sum over them is formed in that order.
-        """
-        M, T, _ = self.positions.shape
-        K = -(-T // _CHUNK)
-        pad = K * _CHUNK - T
-        order = np.stack([tree.indices for tree in self.trees])  # (M, T)
-        ordered = np.take_along_axis(self.positions, order[..., None], axis=1)
-        points = np.concatenate([ordered, np.full((M, pad, 2), np.inf)], axis=1)
-        edge = np.concatenate([ordered, np.repeat(ordered[:, -1:], pad, axis=1)], axis=1)
-        edge = edge.reshape(M, K, _CHUNK, 2)
-        low, high = edge.min(axis=2), edge.max(axis=2)
-        centre = 0.5 * (low + high)
-        half = 0.5 * np.hypot(high[..., 0] - low[..., 0], high[..., 1] - low[..., 1])
-        times = np.concatenate([order, np.zeros((M, pad), dtype=order.dtype)], axis=1)
-        return points.reshape(M, K, _CHUNK, 2), times, centre, half
-
-    def blocks(self) -> Iterator[Block]:
-        """Blocks of candidates (:data:`Block`) with their squared distances."""
-        z = self.z
-        N = z.shape[0]
-        points, times, centre, half = self._chunks()
-        K = centre.shape[1]
-        pair_n, pair_m = np.nonzero(self.query)  # sorted by (locale, platform)
-        rho2 = self.rho2[pair_n, pair_m]
-        radius = self.radius[pair_n, pair_m]
-        # Chunks whose bounding disc meets the pair's disc (with room for rounding), a slab of pairs
-        # at a time.
-        hits = np.empty((pair_n.size, K), dtype=bool)
-        slab = max(1, _BLOCK // K)
-        for p0 in range(0, pair_n.size, slab):
-            p1 = min(p0 + slab, pair_n.size)
-            m = pair_m[p0:p1]
-            dx = z[pair_n[p0:p1], 0, None] - centre[m, :, 0]
-            dy = z[pair_n[p0:p1], 1, None] - centre[m, :, 1]
-            reach = (radius[p0:p1, None] + half[m]) * (1.0 + 1e-9)
-            hits[p0:p1] = dx * dx + dy * dy <= reach * reach
-        # Blocks of whole locales, about _BLOCK points each.
-        per_locale = np.bincount(pair_n, weights=hits.sum(axis=1), minlength=N) * _CHUNK
-        pair_start = np.searchsorted(pair_n, np.arange(N + 1))
-        lo = 0
-        while lo < N:
-            hi = int(np.searchsorted(np.cumsum(per_locale[lo:]), _BLOCK, side="right")) + lo
-            hi = min(max(hi, lo + 1), N)
-            p0, p1 = int(pair_start[lo]), int(pair_start[hi])
-            ph, kh = np.nonzero(hits[p0:p1])
-            ph += p0
-            n, m = pair_n[ph], pair_m[ph]
-            pts = points[m, kh]  # (hits, C, 2)
-            d2 = z[n, 0, None] - pts[..., 0]
-            d2 *= d2
-            dy = z[n, 1, None] - pts[..., 1]
-            dy *= dy
-            d2 += dy
-            inside = d2 <= rho2[ph, None]
-            h, c = np.nonzero(inside)
-            yield lo, hi, n[h], times[m[h], kh[h] * _CHUNK + c], m[h], d2[inside]
-            lo = hi

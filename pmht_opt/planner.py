@@ -83,16 +83,17 @@ class PMHTConfig:
     estep_gate
         Gate of the E-step (:mod:`pmht_opt.estep`): a margin ``G`` in nats, ``"auto"`` (default) or
         ``None`` (always dense). A triple (locale, time, platform) whose log weight is more than ``G``
-        below the best of its (locale, platform) pair gets weight zero; the others are found by
-        KD-tree radius queries without forming the ``N x T x M`` array, and the weights are stored
-        sparse. ``"auto"`` is ``G = log(T M) + 37``: the mass dropped from any pair is below
-        ``1e-16`` of it, so the E-step, including the re-estimated platform prior, equals the dense
-        one to rounding and whole plans agree with dense ones to about 1e-12 (tests). The dense
-        computation runs whenever the gate would keep more than a tenth of the triples (a wide ``r``,
-        early in annealing). ``"auto"`` stays dense with ``update_time_prior=True``: the gated
-        ``pi^tau[n, t]`` is zero, not tiny, where no triple of ``(n, t)`` is kept, and the EM can
-        revive tiny time priors; a numeric ``G`` gates anyway. On by default: large plans are much
-        faster, and where the gate does not pay it costs nothing (dense; docs/decisions.md section 6.1).
+        below the best of its (locale, platform) pair gets weight zero; the others are found within
+        a radius of each locale (:mod:`pmht_opt.candidates`) without forming the ``N x T x M``
+        array, and the weights are stored sparse. ``"auto"`` is ``G = log(T M) + 37``: the mass
+        dropped from any pair is below ``1e-16`` of it, so the E-step, including the re-estimated
+        platform prior, equals the dense one to rounding and whole plans agree with dense ones to
+        about 1e-12 (tests). The dense computation runs whenever the gate would keep more than a
+        tenth of the triples (a wide ``r``, early in annealing). ``"auto"`` stays dense with
+        ``update_time_prior=True``: the gated ``pi^tau[n, t]`` is zero, not tiny, where no triple of
+        ``(n, t)`` is kept, and the EM can revive tiny time priors; a numeric ``G`` gates anyway. On
+        by default: large plans are much faster, and where the gate does not pay it costs nothing
+        (dense; docs/decisions.md section 6.1).
     stop
         Further stopping criteria (:mod:`pmht_opt.stopping`, e.g. ``TimeBudget(5.0)``): the run also
         stops when any of them says so. ``tol`` is :class:`~pmht_opt.stopping.ObjectiveTolerance`,

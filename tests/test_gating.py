@@ -185,13 +185,13 @@ def _brute_candidates(z: np.ndarray, pos: np.ndarray, query: np.ndarray, rho2: n
 @pytest.mark.parametrize("prior", ["uniform", "dirichlet", "windows"])
 @pytest.mark.parametrize("r", [0.002, 0.05, 1.0])
 def test_few_locales_choose_candidates_as_an_exact_count_would(prior: str, r: float) -> None:
-    from pmht_opt import gating
+    from pmht_opt import candidates, gating
     from pmht_opt.likelihood import EStepInputs
 
     z, pos, lt, lk, _ = _case(4, prior, r)
     z, lt, lk = z[:100], None if lt is None else lt[:100], None if lk is None else lk[:100]
     N, (M, T, _) = z.shape[0], pos.shape
-    assert N <= 2 * gating._GATE_SAMPLE  # the estimate counts every locale
+    assert N <= 2 * candidates._GATE_SAMPLE  # the estimate counts every locale
     inputs = EStepInputs(z, pos, lt, lk, r)
     margin = gate_margin("auto", T, M)
     assert margin is not None
@@ -201,7 +201,7 @@ def test_few_locales_choose_candidates_as_an_exact_count_would(prior: str, r: fl
     n_times = np.isfinite(lt).sum(axis=1) if lt is not None else np.full(N, T)
     n_plats = np.isfinite(lk).sum(axis=1) if lk is not None else np.full(N, M)
     support = float(np.sum(n_times * n_plats))
-    tree = gating._TreeCandidates(inputs, margin)
+    tree = candidates.TreeCandidates(inputs, margin)
     exact = len(_brute_candidates(z, pos, tree.query, tree.rho2))
     lo = np.minimum(z.min(axis=0), pos.min(axis=(0, 1)))
     area = float(np.prod(np.maximum(z.max(axis=0), pos.max(axis=(0, 1))) - lo))
@@ -210,9 +210,9 @@ def test_few_locales_choose_candidates_as_an_exact_count_would(prior: str, r: fl
     elif min(support, exact) > budget:
         assert got is None
     elif support <= exact:
-        assert isinstance(got, gating._SupportCandidates)
+        assert isinstance(got, candidates.SupportCandidates)
     else:
-        assert isinstance(got, gating._TreeCandidates)
+        assert isinstance(got, candidates.TreeCandidates)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -222,13 +222,13 @@ def test_chunked_search_finds_what_radius_queries_find(seed: int, block: int, mo
     trees' radius queries (so every sum over them is formed as before), with the dense E-step's
     squared distances; also when blocks split the locales and the horizon is not a whole number of
     chunks."""
-    from pmht_opt import gating
+    from pmht_opt import candidates
     from pmht_opt.likelihood import EStepInputs
 
-    monkeypatch.setattr(gating, "_BLOCK", block)
+    monkeypatch.setattr(candidates, "_BLOCK", block)
     z, pos, _, _, _ = _case(seed, "uniform", 0.01)
     pos = pos[:, : pos.shape[1] - 7]
-    tree = gating._TreeCandidates(EStepInputs(z, pos, None, None, 0.01), 60.0)
+    tree = candidates.TreeCandidates(EStepInputs(z, pos, None, None, 0.01), 60.0)
     blocks = list(tree.blocks())
     assert blocks[0][0] == 0 and blocks[-1][1] == z.shape[0]
     assert all(a[1] == b[0] for a, b in itertools.pairwise(blocks))
