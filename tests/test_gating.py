@@ -8,6 +8,9 @@ from typing import Any
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from conftest import examples
+from hypothesis import event, given, settings
+from hypothesis import strategies as st
 
 import pmht_opt as po
 from pmht_opt.estep import EStepResult, estep, gate_margin, safe_log
@@ -261,3 +264,22 @@ def test_statistics_of_the_gated_estep_equal_a_pass_over_its_weights(prior: str)
     np.testing.assert_array_equal(es.max_weight(), bare.max_weight())
     for a, b in zip(es.map_assignment(), bare.map_assignment(), strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=examples(25), deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    log_r=st.floats(np.log(1e-3), np.log(0.3)),
+    prior=st.sampled_from(["uniform", "dirichlet", "windows"]),
+)
+def test_gated_estep_equals_dense_on_random_paths(seed: int, log_r: float, prior: str) -> None:
+    """Property: wherever the gate runs it gives the dense E-step to rounding; where it does not, the
+    dense E-step itself."""
+    z, pos, lt, lk, r = _case(seed, prior, float(np.exp(log_r)))
+    g = estep(z, pos, lt, lk, r, gate="auto")
+    d = estep(z, pos, lt, lk, r, gate=None)
+    event("gated" if g.gated else "dense")
+    if g.gated:
+        _assert_same(g, d)
+    else:
+        np.testing.assert_array_equal(np.asarray(g.weights), np.asarray(d.weights))
