@@ -112,16 +112,21 @@ class TreeCandidates:
         self.query = reach & np.isfinite(rho2) & (rho2 >= 0)
         self.rho2 = np.where(self.query, rho2, 0.0)
         self.radius = np.sqrt(self.rho2)
+        self._found: list[Block] | None = None
 
     def estimate(self) -> float:
-        """Expected number of candidates: exact for up to ``2 * _GATE_SAMPLE`` locales, else from a
-        sample of them; inf if the bound cannot place every locale."""
+        """Expected number of candidates; inf if the bound cannot place every locale.
+
+        Up to ``2 * _GATE_SAMPLE`` locales the search itself runs and its count is exact (its blocks
+        are kept for :meth:`blocks`); beyond, the radius counts of a sample of locales are scaled up.
+        """
         if not self.ok:
             return math.inf
         N = self.z.shape[0]
-        sample = np.arange(N)
-        if N > 2 * _GATE_SAMPLE:
-            sample = np.random.default_rng(N).choice(N, _GATE_SAMPLE, replace=False)
+        if N <= 2 * _GATE_SAMPLE:
+            self._found = list(self._search())
+            return float(sum(block[2].size for block in self._found))
+        sample = np.random.default_rng(N).choice(N, _GATE_SAMPLE, replace=False)
         count = 0.0
         for m, tree in enumerate(self.trees):
             q = sample[self.query[sample, m]]
@@ -129,6 +134,10 @@ class TreeCandidates:
                 lengths = tree.query_ball_point(self.z[q], self.radius[q, m], return_length=True)
                 count += float(np.sum(lengths))
         return count * N / sample.size
+
+    def blocks(self) -> Iterator[Block]:
+        """Blocks of candidates (:data:`Block`) with their squared distances."""
+        return iter(self._found) if self._found is not None else self._search()
 
     def _chunks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The path points in the trees' order, in chunks ``(M, K, C, 2)`` (padded with infinite
@@ -153,8 +162,8 @@ class TreeCandidates:
         times = np.concatenate([order, np.zeros((M, pad), dtype=order.dtype)], axis=1)
         return points.reshape(M, K, _CHUNK, 2), times, centre, half
 
-    def blocks(self) -> Iterator[Block]:
-        """Blocks of candidates (:data:`Block`) with their squared distances."""
+    def _search(self) -> Iterator[Block]:
+        """The chunked search (class docstring), a block of locales at a time."""
         z = self.z
         N = z.shape[0]
         points, times, centre, half = self._chunks()
