@@ -249,10 +249,13 @@ def _choose_source(inputs: EStepInputs, margin: float) -> TreeCandidates | Suppo
         return None
     budget = GATE_MAX_FRACTION * N * T * M
     # Cheap first look: a disc of the gate's radius around every locale already covers this fraction
-    # of the area the locales and paths span.
-    lo = np.minimum(z.min(axis=0), positions.min(axis=(0, 1)))
-    hi = np.maximum(z.max(axis=0), positions.max(axis=(0, 1)))
-    area = float(np.prod(hi - lo))
+    # of the area the locales and paths span (their box, a coordinate at a time: numpy's reduction
+    # over several axes of a small array costs ten times as much).
+    width = [
+        max(z[:, c].max(), positions[..., c].max()) - min(z[:, c].min(), positions[..., c].min())
+        for c in (0, 1)
+    ]
+    area = float(width[0] * width[1])
     if area > 0 and math.pi * 2.0 * r * margin > GATE_MAX_FRACTION * area and log_tau is None:
         return None
     n_times = np.isfinite(log_tau).sum(axis=1) if log_tau is not None else np.full(N, T)
