@@ -114,18 +114,26 @@ class TreeCandidates:
         self.radius = np.sqrt(self.rho2)
         self._found: list[Block] | None = None
 
-    def estimate(self) -> float:
+    def estimate(self, limit: float = math.inf) -> float:
         """Expected number of candidates; inf if the bound cannot place every locale.
 
         Up to ``2 * _GATE_SAMPLE`` locales the search itself runs and its count is exact (its blocks
-        are kept for :meth:`blocks`); beyond, the radius counts of a sample of locales are scaled up.
+        are kept for :meth:`blocks`), or it stops past ``limit`` and returns its count so far (then
+        above ``limit``); beyond, the radius counts of a sample of locales are scaled up.
         """
         if not self.ok:
             return math.inf
         N = self.z.shape[0]
         if N <= 2 * _GATE_SAMPLE:
-            self._found = list(self._search())
-            return float(sum(block[2].size for block in self._found))
+            found: list[Block] = []
+            exact = 0
+            for block in self._search():
+                found.append(block)
+                exact += block[2].size
+                if exact > limit:
+                    return float(exact)
+            self._found = found
+            return float(exact)
         sample = np.random.default_rng(N).choice(N, _GATE_SAMPLE, replace=False)
         count = 0.0
         for m, tree in enumerate(self.trees):

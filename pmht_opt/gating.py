@@ -262,7 +262,7 @@ def _choose_source(inputs: EStepInputs, margin: float) -> TreeCandidates | Suppo
     n_plats = np.isfinite(log_k).sum(axis=1) if log_k is not None else np.full(N, M)
     support = float(np.sum(n_times * n_plats))
     tree = TreeCandidates(inputs, margin)
-    estimate = tree.estimate()
+    estimate = tree.estimate(limit=budget)
     if min(support, estimate) > budget:
         return None
     if support <= estimate:
