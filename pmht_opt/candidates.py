@@ -17,7 +17,7 @@ from collections.abc import Iterator
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pmht_opt.likelihood import _UNDERFLOW, EStepInputs
+from pmht_opt.likelihood import _UNDERFLOW, EStepInputs, squared_distance
 
 #: Extra nats on the candidate radius so that rounding in the bound can never lose a kept triple.
 _GATE_SLACK = 1.0
@@ -34,7 +34,13 @@ Block = tuple[int, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
 
 
 class SupportCandidates:
-    """Every triple whose priors are non-zero, a block of locales at a time."""
+    """Every triple whose priors are non-zero, a block of locales at a time.
+
+    Parameters
+    ----------
+    inputs
+        The E-step's inputs; only the priors' zero pattern is used.
+    """
 
     def __init__(self, inputs: EStepInputs) -> None:
         M, T, _ = inputs.positions.shape
@@ -63,7 +69,15 @@ class TreeCandidates:
     are cut into chunks of :data:`_CHUNK`, a chunk is skipped when its bounding disc lies outside the
     pair's radius, and the points of the others are measured directly (their squared distances are
     kept for the log weights). Radius queries of the trees would give the same candidates in the
-    same order, but as Python lists, whose cost dominates once there are millions of candidates.
+    same order (up to points on a radius itself, which the bound's slack keeps far from any kept
+    triple), but as Python lists, whose cost dominates once there are millions of candidates.
+
+    Parameters
+    ----------
+    inputs
+        The E-step's inputs.
+    margin
+        The gate's margin ``G`` in nats.
     """
 
     def __init__(self, inputs: EStepInputs, margin: float) -> None:
@@ -112,6 +126,9 @@ class TreeCandidates:
         self.query = reach & np.isfinite(rho2) & (rho2 >= 0)
         self.rho2 = np.where(self.query, rho2, 0.0)
         self.radius = np.sqrt(self.rho2)
+        # Room for the rounding of the chunks' discs and distances, in the coordinates' units.
+        scale = max(float(np.max(np.abs(z))), float(np.max(np.abs(positions))))
+        self.slack = 16.0 * np.finfo(float).eps * scale
         self._found: list[Block] | None = None
 
     def estimate(self, limit: float = math.inf) -> float:
@@ -144,8 +161,11 @@ class TreeCandidates:
         return count * N / sample.size
 
     def blocks(self) -> Iterator[Block]:
-        """Blocks of candidates (:data:`Block`) with their squared distances."""
-        return iter(self._found) if self._found is not None else self._search()
+        """Blocks of candidates (:data:`Block`) with their squared distances: those of
+        :meth:`estimate`'s search if it ran, handed over once (the E-step turns the distances into
+        log weights in place), else a new search."""
+        found, self._found = self._found, None
+        return iter(found) if found is not None else self._search()
 
     def _chunks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The path points in the trees' order, in chunks ``(M, K, C, 2)`` (padded with infinite
@@ -190,25 +210,22 @@ class TreeCandidates:
             m = pair_m[p0:p1]
             dx = z[pair_n[p0:p1], 0, None] - centre[m, :, 0]
             dy = z[pair_n[p0:p1], 1, None] - centre[m, :, 1]
-            reach = (radius[p0:p1, None] + half[m]) * (1.0 + 1e-9)
+            reach = (radius[p0:p1, None] + half[m]) * (1.0 + 1e-9) + self.slack
             hits[p0:p1] = dx * dx + dy * dy <= reach * reach
         # Blocks of whole locales, about _BLOCK points each.
-        per_locale = np.bincount(pair_n, weights=hits.sum(axis=1), minlength=N) * _CHUNK
+        cumulative = np.cumsum(np.bincount(pair_n, weights=hits.sum(axis=1), minlength=N) * _CHUNK)
         pair_start = np.searchsorted(pair_n, np.arange(N + 1))
         lo = 0
         while lo < N:
-            hi = int(np.searchsorted(np.cumsum(per_locale[lo:]), _BLOCK, side="right")) + lo
+            before = cumulative[lo - 1] if lo else 0.0
+            hi = int(np.searchsorted(cumulative, before + _BLOCK, side="right"))
             hi = min(max(hi, lo + 1), N)
             p0, p1 = int(pair_start[lo]), int(pair_start[hi])
             ph, kh = np.nonzero(hits[p0:p1])
             ph += p0
             n, m = pair_n[ph], pair_m[ph]
             pts = points[m, kh]  # (hits, C, 2)
-            d2 = z[n, 0, None] - pts[..., 0]
-            d2 *= d2
-            dy = z[n, 1, None] - pts[..., 1]
-            dy *= dy
-            d2 += dy
+            d2 = squared_distance(z[n, 0, None], z[n, 1, None], pts[..., 0], pts[..., 1])
             inside = d2 <= rho2[ph, None]
             h, c = np.nonzero(inside)
             yield lo, hi, n[h], times[m[h], kh[h] * _CHUNK + c], m[h], d2[inside]

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from pmht_opt.gating import GATE_MAX_FRACTION, estep_gated, gate_margin
+from pmht_opt.gating import GATE_MAX_FRACTION, estep_gated, gate_margin, row_maxima
 from pmht_opt.likelihood import EStepInputs
 
 #: Weights below this are left out of an :class:`EStepSummary` (each locale's weights sum to one).
@@ -107,7 +107,7 @@ class EStepResult:
             rows = w[lo:hi].toarray()
         else:
             rows = np.asarray(w[lo:hi])
-        return rows.reshape(hi - lo, -1, self.n_platforms)
+        return rows.reshape(hi - lo, self.n_times, self.n_platforms)
 
     def time_prior(self) -> np.ndarray:
         """Updated ``pi^tau[n, t] = sum_m w[n, t, m]`` (eq. 11), ``(N, T)``."""
@@ -133,11 +133,8 @@ class EStepResult:
             return self.best_column
         w = self.weights
         if isinstance(w, sp.csr_matrix):
-            starts = w.indptr[:-1]
-            best = np.maximum.reduceat(w.data, starts)
-            rows = np.repeat(np.arange(w.shape[0]), np.diff(w.indptr))
-            cand = np.where(w.data == best[rows], w.indices, w.shape[1])
-            return np.minimum.reduceat(cand, starts)
+            rows, cols, vals = self._triples()
+            return row_maxima(vals, cols, rows, w.indptr[:-1], w.shape[1])[1]
         return np.argmax(w, axis=1)
 
     def map_assignment(self) -> tuple[np.ndarray, np.ndarray]:
@@ -261,9 +258,9 @@ def estep(
                 log_normaliser=gated.log_normaliser,
                 n_platforms=M,
                 inputs=gated.inputs,
-                platform_totals=gated.platform_prior,
+                platform_totals=gated.platform_totals,
                 best_column=gated.best_column,
-                largest=gated.max_weight,
+                largest=gated.largest,
             )
     TM = T * M
     w = np.empty((N, TM))

@@ -26,7 +26,14 @@ import scipy.sparse as sp
 
 from pmht_opt.candidates import SupportCandidates, TreeCandidates
 from pmht_opt.exceptions import ConfigError
-from pmht_opt.likelihood import _SAFE_SCALE, _UNDERFLOW, EStepInputs, log_const, log_weights_from_d2
+from pmht_opt.likelihood import (
+    _SAFE_SCALE,
+    _UNDERFLOW,
+    EStepInputs,
+    log_const,
+    log_weights_from_d2,
+    squared_distance,
+)
 
 #: ``gate="auto"``: the margin is ``log(T M) + GATE_AUTO_NATS``, so the mass dropped from a (locale,
 #: platform) pair is below ``exp(-GATE_AUTO_NATS)`` (8.5e-17) of it, under half the float64 epsilon.
@@ -58,9 +65,9 @@ def gate_margin(gate: float | str | None, T: int, M: int) -> float | None:
 class GatedWeights(NamedTuple):
     """What the gated E-step computes: sparse weights with the dense layout and their statistics.
 
-    ``platform_prior`` (``sum_t w[n, t, m]``), ``best_column`` (each row's column of largest weight,
-    the first among ties) and ``max_weight`` are those of ``weights``, computed block by block on the
-    way (their sums in the order a pass over ``weights`` would form them).
+    ``platform_totals`` (``sum_t w[n, t, m]``), ``best_column`` (each row's column of largest weight,
+    the first among ties) and ``largest`` (that weight) are those of ``weights``, computed block by
+    block on the way (their sums in the order a pass over ``weights`` would form them).
     """
 
     weights: sp.csr_matrix
@@ -68,9 +75,9 @@ class GatedWeights(NamedTuple):
     WZ: np.ndarray
     log_normaliser: np.ndarray
     inputs: EStepInputs
-    platform_prior: np.ndarray
+    platform_totals: np.ndarray
     best_column: np.ndarray
-    max_weight: np.ndarray
+    largest: np.ndarray
 
 
 def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
@@ -79,7 +86,8 @@ def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
     The candidates come a block of locales at a time, sorted by locale and platform, so every
     locale's and every (locale, platform) pair's candidates are contiguous and the whole computation
     of a block (log weights, the pair and locale maxima, the gate, the normalisation) runs on arrays
-    that stay small, whatever the size of the problem.
+    of a block's size; only the weights and their columns, which the CSR matrix keeps, grow with
+    the number of triples.
     """
     source = _choose_source(inputs, margin)
     if source is None:
@@ -90,7 +98,7 @@ def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
     N = z.shape[0]
     budget = GATE_MAX_FRACTION * N * T * M
     const = log_const(r, T, M, log_tau is None, log_k is None)
-    out = _Accumulator(N, T, M, budget)
+    out = _Accumulator(N, T, M)
     total = 0
     for lo, hi, row, t, plat, d2 in source.blocks():
         total += row.size
@@ -116,23 +124,28 @@ def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
         s = np.bincount(local, weights=a, minlength=hi - lo)
         a *= (1.0 / s)[local]
         out.add(lo, hi, z, local, t, plat, a, best + np.log(s))
-    if out.empty:
-        return None
     return out.result(inputs)
 
 
 def _squared_distances(
     z: np.ndarray, positions: np.ndarray, row: np.ndarray, t: np.ndarray, plat: np.ndarray
 ) -> np.ndarray:
-    """``(zx - px)^2 + (zy - py)^2`` of the triples, elementwise as in the dense E-step."""
+    """Squared distances of the triples ``(row, t, plat)``, with the dense E-step's arithmetic."""
     T = positions.shape[1]
     flat = plat * T + t
-    d2 = z[row, 0] - positions[:, :, 0].ravel()[flat]
-    d2 *= d2
-    dy = z[row, 1] - positions[:, :, 1].ravel()[flat]
-    dy *= dy
-    d2 += dy
-    return d2
+    px, py = positions[:, :, 0].ravel()[flat], positions[:, :, 1].ravel()[flat]
+    return squared_distance(z[row, 0], z[row, 1], px, py)
+
+
+def row_maxima(
+    data: np.ndarray, indices: np.ndarray, rows: np.ndarray, starts: np.ndarray, n_columns: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's largest value and its column, the first among ties (as ``np.argmax`` of the dense
+    row), for sparse rows given as ``data`` at columns ``indices``, row ``rows`` of each entry, the
+    rows starting at ``starts`` (none empty)."""
+    best = np.maximum.reduceat(data, starts)
+    column = np.minimum.reduceat(np.where(data == best[rows], indices, n_columns), starts)
+    return best, column
 
 
 def _gate_block(
@@ -164,7 +177,7 @@ class _Accumulator:
     triples is allocated but the weights and their columns, which the CSR matrix keeps.
     """
 
-    def __init__(self, N: int, T: int, M: int, budget: float) -> None:
+    def __init__(self, N: int, T: int, M: int) -> None:
         self.N, self.T, self.M = N, T, M
         TM = T * M
         self.W = np.zeros(TM)
@@ -172,17 +185,13 @@ class _Accumulator:
         self.lse = np.empty(N)
         self.platform = np.empty((N, M))
         self.best_column = np.empty(N, dtype=np.intp)
-        self.max_weight = np.empty(N)
-        # The CSR's index type, chosen here (as scipy would) so that it keeps the arrays as they are.
-        self.index_dtype = np.int32 if max(N, T * M, budget) < np.iinfo(np.int32).max else np.int64
-        self.indptr = np.zeros(N + 1, dtype=self.index_dtype)
+        self.largest = np.empty(N)
+        # Columns in the index type scipy keeps when every column fits in it (no conversion copy);
+        # the row pointers are converted by scipy, as they are few.
+        self.column_dtype = np.int32 if TM <= np.iinfo(np.int32).max else np.int64
+        self.indptr = np.zeros(N + 1, dtype=np.int64)
         self.cols: list[np.ndarray] = []
         self.values: list[np.ndarray] = []
-
-    @property
-    def empty(self) -> bool:
-        """Whether no block was added."""
-        return not self.values
 
     def add(
         self,
@@ -197,8 +206,8 @@ class _Accumulator:
     ) -> None:
         """The normalised weights ``w`` of locales ``lo .. hi - 1`` (rows ``lo + local``, sorted) at
         times ``t`` and platforms ``plat``, with the rows' log-normalisers."""
-        M, TM, n = self.M, self.T * self.M, hi - lo
-        col = (t * M + plat).astype(self.index_dtype)
+        M, n = self.M, hi - lo
+        col = (t * M + plat).astype(self.column_dtype)
         np.add.at(self.W, col, w)
         np.add.at(self.WZ[0], col, w * z[lo + local, 0])
         np.add.at(self.WZ[1], col, w * z[lo + local, 1])
@@ -207,9 +216,7 @@ class _Accumulator:
         counts = np.bincount(local, minlength=n)
         starts = np.zeros(n, dtype=np.intp)
         np.cumsum(counts[:-1], out=starts[1:])
-        best = np.maximum.reduceat(w, starts)
-        self.max_weight[lo:hi] = best
-        self.best_column[lo:hi] = np.minimum.reduceat(np.where(w == best[local], col, TM), starts)
+        self.largest[lo:hi], self.best_column[lo:hi] = row_maxima(w, col, local, starts, self.T * M)
         self.indptr[lo + 1 : hi + 1] = counts
         self.cols.append(col)
         self.values.append(w)
@@ -229,7 +236,7 @@ class _Accumulator:
             inputs,
             self.platform,
             self.best_column,
-            self.max_weight,
+            self.largest,
         )
 
 
@@ -249,8 +256,8 @@ def _choose_source(inputs: EStepInputs, margin: float) -> TreeCandidates | Suppo
         return None
     budget = GATE_MAX_FRACTION * N * T * M
     # Cheap first look: a disc of the gate's radius around every locale already covers this fraction
-    # of the area the locales and paths span (their box, a coordinate at a time: numpy's reduction
-    # over several axes of a small array costs ten times as much).
+    # of the area the locales and paths span (their box, a coordinate at a time: numpy's reductions
+    # over several axes of a small array are slow, docs/decisions.md section 6.3).
     width = [
         max(z[:, c].max(), positions[..., c].max()) - min(z[:, c].min(), positions[..., c].min())
         for c in (0, 1)

@@ -48,6 +48,28 @@ def log_weights_from_d2(d2: np.ndarray, r: float, const: float) -> np.ndarray:
     return d2
 
 
+def squared_distance(
+    zx: np.ndarray,
+    zy: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    out: np.ndarray | None = None,
+    tmp: np.ndarray | None = None,
+) -> np.ndarray:
+    """``(zx - px)^2 + (zy - py)^2`` elementwise (with broadcasting), into ``out`` if given, with
+    ``tmp`` as scratch.
+
+    The one squared-distance arithmetic of every E-step: the dense one, the gated one's candidates and
+    the row recompute all form their distances here, so their log weights agree bit for bit.
+    """
+    d2 = np.subtract(zx, px, out=out)
+    d2 *= d2
+    dy = np.subtract(zy, py, out=tmp)
+    dy *= dy
+    d2 += dy
+    return d2
+
+
 @dataclass
 class EStepInputs:
     """What an E-step is computed from: enough to recompute any row exactly."""
@@ -108,11 +130,7 @@ def _dense_rows(
     scale = max(float(np.max(np.abs(p))), float(np.max(np.abs(z))))
     distance2 = None
     if scale < _SAFE_SCALE:
-        np.subtract.outer(z[:, 0], p[:, 0], out=out)
-        out *= out
-        np.subtract.outer(z[:, 1], p[:, 1], out=tmp)
-        tmp *= tmp
-        out += tmp
+        squared_distance(z[:, 0, None], z[:, 1, None], p[None, :, 0], p[None, :, 1], out=out, tmp=tmp)
     else:
         # Far-away paths (a diverged plan): hypot avoids the overflow of the squared coordinates.
         np.hypot(z[:, None, 0] - p[None, :, 0], z[:, None, 1] - p[None, :, 1], out=out)
