@@ -271,6 +271,8 @@ class EMRun:
         es, objective = self._estep(self.states, r, out.noise)
         if it < schedule.max_iter and schedule.r_at(it + 1) != r:
             # The objective is recorded at this iteration's r; the next iteration weighs with its own.
+            # The weights at this r are not kept: freed before the next E-step forms its own.
+            del es
             es, _ = self._estep(self.states, schedule.r_at(it + 1))
         estep_time = time.perf_counter() - t0
         self.estep = es
