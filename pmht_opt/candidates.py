@@ -78,9 +78,12 @@ class TreeCandidates:
         The E-step's inputs.
     margin
         The gate's margin ``G`` in nats.
+    scale
+        The largest coordinate of the locales and paths (computed here if not given), which sets the
+        rounding slack of the chunks' discs.
     """
 
-    def __init__(self, inputs: EStepInputs, margin: float) -> None:
+    def __init__(self, inputs: EStepInputs, margin: float, scale: float | None = None) -> None:
         z, positions, r = inputs.locales, inputs.positions, inputs.r
         log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
         M = positions.shape[0]
@@ -127,7 +130,8 @@ class TreeCandidates:
         self.rho2 = np.where(self.query, rho2, 0.0)
         self.radius = np.sqrt(self.rho2)
         # Room for the rounding of the chunks' discs and distances, in the coordinates' units.
-        scale = max(float(np.max(np.abs(z))), float(np.max(np.abs(positions))))
+        if scale is None:
+            scale = max(float(np.max(np.abs(z))), float(np.max(np.abs(positions))))
         self.slack = 16.0 * np.finfo(float).eps * scale
         self._found: list[Block] | None = None
 

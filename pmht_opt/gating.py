@@ -159,11 +159,12 @@ def _gate_block(
     starts = np.flatnonzero(np.concatenate(([True], key[1:] != key[:-1])))
     pair_best = np.maximum.reduceat(a, starts)
     pair_count = np.diff(np.append(starts, a.size))
+    pair_row = row[starts] - lo
     best = np.full(hi - lo, -np.inf)
-    np.maximum.at(best, row[starts] - lo, pair_best)
+    np.maximum.at(best, pair_row, pair_best)
     if not np.all(np.isfinite(best)):
         return None
-    threshold = np.maximum(pair_best - margin, best[row[starts] - lo] - _UNDERFLOW)
+    threshold = np.maximum(pair_best - margin, best[pair_row] - _UNDERFLOW)
     keep = a >= np.repeat(threshold, pair_count)
     return (None if np.all(keep) else keep), best
 
@@ -268,7 +269,7 @@ def _choose_source(inputs: EStepInputs, margin: float) -> TreeCandidates | Suppo
     n_times = np.isfinite(log_tau).sum(axis=1) if log_tau is not None else np.full(N, T)
     n_plats = np.isfinite(log_k).sum(axis=1) if log_k is not None else np.full(N, M)
     support = float(np.sum(n_times * n_plats))
-    tree = TreeCandidates(inputs, margin)
+    tree = TreeCandidates(inputs, margin, scale)
     estimate = tree.estimate(limit=budget)
     if min(support, estimate) > budget:
         return None
