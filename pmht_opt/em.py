@@ -151,7 +151,9 @@ class EMRun:
     states
         ``(M, T+1, 6)`` current paths.
     estep
-        The E-step of the current paths (at the next iteration's ``r``).
+        The E-step of the current paths (at the next iteration's ``r``). Without constraints it is
+        released once the M-step has used it, before the next one is formed (so ``None`` inside
+        that E-step, and for good if it was interrupted), and ``last_context.estep`` is ``None``.
     iteration
         Iterations run so far.
     last_context
@@ -210,12 +212,13 @@ class EMRun:
             self.snapshots[0] = self.states[:, :, POS].copy()
         t0 = time.perf_counter()
         r0 = self.schedule.r_at(1)
-        self.estep, objective = self._estep(self.states, r0)
-        self._initial = (objective, time.perf_counter() - t0, r0, self.estep.gated)
+        es, objective = self._estep(self.states, r0)
+        self.estep: EStepResult | None = es
+        self._initial = (objective, time.perf_counter() - t0, r0, es.gated)
         self._objectives = [objective]
-        self._assignment = self.estep.map_assignment()[0]
+        self._assignment = es.map_assignment()[0]
         self._assignment_age = 0
-        self._notify(self.callbacks.after_estep, self.estep)
+        self._notify(self.callbacks.after_estep, es)
 
     # ------------------------------------------------------------------ the loop
 
@@ -239,6 +242,15 @@ class EMRun:
         if fn is not None:
             validation.call_user(fn, self, value)
 
+    def _current_estep(self) -> EStepResult:
+        """The E-step of the current paths; :class:`ConfigError` if an interrupted iteration left none."""
+        if self.estep is None:
+            raise ConfigError(
+                "the last iteration stopped before its E-step was done, so the run has no weights for "
+                "its paths; start a new EMRun."
+            )
+        return self.estep
+
     @property
     def done(self) -> bool:
         """Whether the stopping criterion has stopped the run."""
@@ -252,7 +264,7 @@ class EMRun:
         cfg, schedule = self.config, self.schedule
         it = self.iteration + 1
         r = schedule.r_at(it)
-        es = self.estep
+        es = self._current_estep()
         if cfg.update_time_prior:
             self.log_tau = safe_log(es.time_prior())
         if cfg.update_platform_prior:
@@ -267,6 +279,13 @@ class EMRun:
         self._notify(self.callbacks.after_mstep, out)
         path_change = float(np.max(np.abs(out.states[:, :, POS] - self.states[:, :, POS])))
         self.states = out.states
+        if not cfg.constraints:
+            # Nothing reads this E-step again (with constraints, ``last_context`` keeps it for their
+            # reports): let it go before the next one is formed, so that the weights of a large
+            # dense E-step are never held twice.
+            ctx.estep = None
+            self.estep = None
+            del es
         t0 = time.perf_counter()
         es, objective = self._estep(self.states, r, out.noise)
         if it < schedule.max_iter and schedule.r_at(it + 1) != r:
@@ -357,7 +376,8 @@ class EMRun:
         scenario, cfg = self.scenario, self.config
         validation.check_finite_plan(self.states, self.solver)
         N, M = scenario.n_locales, scenario.n_platforms
-        assignment, visit_time = self.estep.map_assignment()
+        es = self._current_estep()
+        assignment, visit_time = es.map_assignment()
         reports: tuple[Any, ...] = ()
         if cfg.constraints and self.last_context is not None:
             reports = tuple(c.violation(self.states, self.last_context) for c in cfg.constraints)
@@ -375,7 +395,7 @@ class EMRun:
             snapshots=dict(self.snapshots),
             constraints=tuple(cfg.constraints),
             reports=reports,
-            estep=self.estep.summary(),
+            estep=es.summary(),
             anneal=cfg.anneal.describe(),
         )
 

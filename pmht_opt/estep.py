@@ -155,10 +155,12 @@ class EStepResult:
         """This E-step without its dense arrays: weights at or above ``floor`` and the exact
         per-locale platform probabilities (:class:`EStepSummary`)."""
         w = self.weights
-        csr = w.copy() if isinstance(w, sp.csr_matrix) else sp.csr_matrix(np.where(w >= floor, w, 0.0))
         if isinstance(w, sp.csr_matrix):
+            csr = w.copy()
             csr.data[csr.data < floor] = 0.0
             csr.eliminate_zeros()
+        else:
+            csr = _dense_to_csr(w, floor)
         return EStepSummary(
             weights=csr,
             platform_probability=self.platform_prior(),
@@ -206,6 +208,29 @@ class EStepSummary:
     def visit_time_distribution(self, n: int) -> np.ndarray:
         """``(T,)`` probability of each visit time of locale ``n``, over all platforms."""
         return self.locale_weights(n).sum(axis=1)
+
+
+def _dense_to_csr(w: np.ndarray, floor: float) -> sp.csr_matrix:
+    """The entries of ``w`` at or above ``floor`` as CSR (the matrix ``scipy`` builds from the
+    floored array), formed a few rows at a time: a pass to count each row's entries, a pass to copy
+    them, and nothing allocated but the result."""
+    N, C = w.shape
+    step = max(1, (1 << 20) // max(C, 1))
+    indptr = np.zeros(N + 1, dtype=np.int64)
+    for lo in range(0, N, step):
+        block = w[lo : lo + step]
+        indptr[lo + 1 : lo + 1 + block.shape[0]] = np.count_nonzero(block >= floor, axis=1)
+    np.cumsum(indptr, out=indptr)
+    index = np.int32 if max(int(indptr[-1]), C) <= np.iinfo(np.int32).max else np.int64
+    data = np.empty(int(indptr[-1]))
+    cols = np.empty(int(indptr[-1]), dtype=index)
+    for lo in range(0, N, step):
+        block = w[lo : lo + step]
+        keep = block >= floor
+        a, b = indptr[lo], indptr[lo + block.shape[0]]
+        data[a:b] = block[keep]
+        cols[a:b] = np.nonzero(keep)[1]
+    return sp.csr_matrix((data, cols, indptr.astype(index, copy=False)), shape=(N, C))
 
 
 def safe_log(p: np.ndarray) -> np.ndarray:

@@ -159,3 +159,58 @@ def test_final_estep_is_kept_compactly() -> None:
         t, m = np.unravel_index(np.argmax(w), w.shape)
         assert (m, t + 1) == (res.assignment[n], res.visit_time[n])
         np.testing.assert_allclose(es.visit_time_distribution(n).sum(), 1.0, atol=1e-9)
+
+
+def test_without_constraints_the_used_estep_is_released_before_the_next() -> None:
+    """A run without constraints holds one E-step's weights at a time: the one an M-step used is
+    gone (nothing of the run refers to it) once the next is formed, while the run's own ``estep`` is
+    always the current one between iterations."""
+    import gc
+    import weakref
+
+    sc = small_scenario(seed=4)
+    seen: list[weakref.ref[object]] = []
+    during: list[object] = []
+    callbacks = po.EMCallbacks(
+        after_estep=lambda run, es: seen.append(weakref.ref(es)),
+        after_mstep=lambda run, out: during.append(run.estep),  # still there for the observers
+    )
+    with po.EMRun(sc, po.PMHTConfig(max_iter=4, anneal=po.Anneal(1.0, 2)), callbacks=callbacks) as run:
+        for _ in range(4):
+            run.step()
+            during.clear()
+            gc.collect()
+            assert run.estep is not None and seen[-1]() is run.estep
+            assert all(ref() is None for ref in seen[:-1])
+            assert run.last_context is not None and run.last_context.estep is None
+        assert np.all(np.isfinite(run.result().positions))
+
+
+def test_with_constraints_the_last_context_keeps_its_estep() -> None:
+    sc = small_scenario(seed=4)
+    cfg = po.PMHTConfig(max_iter=3, anneal=None, solver="clarabel", constraints=[po.AreaBounds(0, 4, 0, 4)])
+    with po.EMRun(sc, cfg) as run:
+        used = run.estep
+        run.step()
+        assert run.last_context is not None and run.last_context.estep is used
+
+
+def test_a_run_interrupted_in_its_estep_says_so(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C inside an E-step (after the used one was released) leaves a run that refuses to go on
+    or to give a plan, by name, instead of failing on a missing attribute."""
+    from pmht_opt import em
+
+    sc = small_scenario(seed=4)
+    with po.EMRun(sc, po.PMHTConfig(max_iter=5, anneal=None)) as run:
+        run.step()
+
+        def interrupted(*args: object, **kwargs: object) -> None:
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(em, "estep", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            run.step()
+        monkeypatch.undo()
+        for action in (run.step, run.result):
+            with pytest.raises(po.ConfigError, match="stopped before its E-step was done"):
+                action()

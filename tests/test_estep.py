@@ -82,3 +82,24 @@ def test_extreme_but_finite_coordinates_give_finite_weights() -> None:
     assert not np.any(np.isnan(es.log_normaliser))
     # All mass on the nearest pair: platform 0 at t=1 is at distance ~1.4e200, the nearest.
     assert es.map_assignment()[0][0] == 0
+
+
+def test_the_summary_of_dense_weights_is_scipys_matrix_of_the_floored_array(rng: np.random.Generator) -> None:
+    """The dense E-step's summary is formed a few rows at a time; it must be the very matrix scipy
+    builds from the floored array (same entries, column order and index type), whatever the floor,
+    including rows with nothing kept and a floor that keeps nothing."""
+    import scipy.sparse as sp
+
+    N, T, M = 40, 9000, 3  # several blocks of rows
+    z = rng.uniform(0, 3, (N, 2))
+    pos = rng.uniform(0, 3, (M, T, 2))
+    es = estep(z, pos, None, None, 0.02)
+    assert not es.gated
+    for floor in (1e-12, 1e-4, 2.0):
+        got = es.summary(floor).weights
+        want = sp.csr_matrix(np.where(es.weights >= floor, es.weights, 0.0))
+        assert got.shape == want.shape and got.has_sorted_indices
+        assert got.indices.dtype == want.indices.dtype
+        np.testing.assert_array_equal(got.indptr, want.indptr)
+        np.testing.assert_array_equal(got.indices, want.indices)
+        np.testing.assert_array_equal(got.data, want.data)
