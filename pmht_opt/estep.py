@@ -219,18 +219,26 @@ def _dense_to_csr(w: np.ndarray, floor: float) -> sp.csr_matrix:
     indptr = np.zeros(N + 1, dtype=np.int64)
     for lo in range(0, N, step):
         block = w[lo : lo + step]
-        indptr[lo + 1 : lo + 1 + block.shape[0]] = np.count_nonzero(block >= floor, axis=1)
+        indptr[lo + 1 : lo + 1 + block.shape[0]] = np.count_nonzero(_kept(block, floor), axis=1)
     np.cumsum(indptr, out=indptr)
     index = np.int32 if max(int(indptr[-1]), C) <= np.iinfo(np.int32).max else np.int64
     data = np.empty(int(indptr[-1]))
     cols = np.empty(int(indptr[-1]), dtype=index)
     for lo in range(0, N, step):
         block = w[lo : lo + step]
-        keep = block >= floor
+        keep = _kept(block, floor)
         a, b = indptr[lo], indptr[lo + block.shape[0]]
         data[a:b] = block[keep]
         cols[a:b] = np.nonzero(keep)[1]
     return sp.csr_matrix((data, cols, indptr.astype(index, copy=False)), shape=(N, C))
+
+
+def _kept(block: np.ndarray, floor: float) -> np.ndarray:
+    """The entries a summary keeps: at or above ``floor``, and non-zero (scipy keeps no zeros)."""
+    keep = block >= floor
+    if floor <= 0.0:
+        keep &= block != 0.0
+    return keep
 
 
 def safe_log(p: np.ndarray) -> np.ndarray:

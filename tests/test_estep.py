@@ -95,7 +95,8 @@ def test_the_summary_of_dense_weights_is_scipys_matrix_of_the_floored_array(rng:
     pos = rng.uniform(0, 3, (M, T, 2))
     es = estep(z, pos, None, None, 0.02)
     assert not es.gated
-    for floor in (1e-12, 1e-4, 2.0):
+    es.weights[3, :100] = 0.0  # exact zeros, which scipy never keeps
+    for floor in (0.0, 1e-12, 1e-4, 2.0):
         got = es.summary(floor).weights
         want = sp.csr_matrix(np.where(es.weights >= floor, es.weights, 0.0))
         assert got.shape == want.shape and got.has_sorted_indices
