@@ -23,7 +23,7 @@ import solvers
 from pmht_opt import validation
 from pmht_opt.constraints.base import ConstraintContext
 from pmht_opt.constraints.feasibility import check_feasible
-from pmht_opt.estep import EStepResult, estep, gate_margin, safe_log
+from pmht_opt.estep import EStepResult, estep, gate_margin, log_likelihood, safe_log
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.model import POS, STATE_DIM
 from pmht_opt.mstep.base import MStepData, MStepOutput
@@ -232,11 +232,14 @@ class EMRun:
         numbers, which loses every digit when ``q dt^5`` is tiny against the positions.
         """
         es = estep(self.scenario.locales, states[:, 1:, POS], self.log_tau, self.log_k, r, gate=self.gate)
+        return es, self._log_prior(states, noise) + es.log_likelihood
+
+    def _log_prior(self, states: np.ndarray, noise: np.ndarray | None) -> float:
+        """``log P(X)`` up to its constant: from the M-step's process noise ``noise`` where the backend
+        has it (see :meth:`_estep`), else from the states."""
         if noise is None:
-            log_prior = self.scenario.model.log_prior(states)
-        else:
-            log_prior = float(-0.5 * np.sum(noise * noise))
-        return es, log_prior + es.log_likelihood
+            return self.scenario.model.log_prior(states)
+        return float(-0.5 * np.sum(noise * noise))
 
     def _notify(self, fn: Callable[[EMRun, Any], None] | None, value: Any) -> None:
         if fn is not None:
@@ -287,12 +290,15 @@ class EMRun:
             self.estep = None
             del es
         t0 = time.perf_counter()
-        es, objective = self._estep(self.states, r, out.noise)
         if it < schedule.max_iter and schedule.r_at(it + 1) != r:
-            # The objective is recorded at this iteration's r; the next iteration weighs with its own.
-            # The weights at this r are not kept: freed before the next E-step forms its own.
-            del es
+            # The objective is recorded at this iteration's r; the next iteration weighs with its own,
+            # so at this r only the objective is wanted (the same number, without the weights).
+            objective = self._log_prior(self.states, out.noise) + log_likelihood(
+                self.scenario.locales, self.states[:, 1:, POS], self.log_tau, self.log_k, r, gate=self.gate
+            )
             es, _ = self._estep(self.states, schedule.r_at(it + 1))
+        else:
+            es, objective = self._estep(self.states, r, out.noise)
         estep_time = time.perf_counter() - t0
         self.estep = es
         self.iteration = it

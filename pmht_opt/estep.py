@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from pmht_opt.gating import GATE_MAX_FRACTION, estep_gated, gate_margin, row_maxima
+from pmht_opt.gating import GATE_MAX_FRACTION, estep_gated, gate_margin, gated_log_normalisers, row_maxima
 from pmht_opt.likelihood import EStepInputs
 
 #: Weights below this are left out of an :class:`EStepSummary` (each locale's weights sum to one).
@@ -210,6 +210,31 @@ class EStepSummary:
         return self.locale_weights(n).sum(axis=1)
 
 
+def log_likelihood(
+    locales: np.ndarray,
+    positions: np.ndarray,
+    log_time_prior: np.ndarray | None,
+    log_platform_prior: np.ndarray | None,
+    r: float,
+    gate: float | str | None = None,
+) -> float:
+    """``estep(...).log_likelihood`` (bit for bit, the same gate decision and arithmetic), without
+    forming or keeping the weights: the data term of the EM objective where only it is wanted.
+
+    Annealing scores each iteration at its own ``r`` but weighs the next one at the next ``r``, so
+    every annealing iteration needs an objective at a penalty whose weights are never used.
+    """
+    M, T, _ = positions.shape
+    margin = gate_margin(gate, T, M)
+    inputs = EStepInputs(locales, positions, log_time_prior, log_platform_prior, r)
+    lse = gated_log_normalisers(inputs, margin) if margin is not None else None
+    if lse is None:
+        lse = np.empty(locales.shape[0])
+        for i, j, block_lse in inputs.dense_blocks(None):
+            lse[i:j] = block_lse
+    return float(np.sum(lse))
+
+
 def _dense_to_csr(w: np.ndarray, floor: float) -> sp.csr_matrix:
     """The entries of ``w`` at or above ``floor`` as CSR (the matrix ``scipy`` builds from the
     floored array), formed a few rows at a time: a pass to count each row's entries, a pass to copy
@@ -318,5 +343,6 @@ __all__ = [
     "EStepSummary",
     "estep",
     "gate_margin",
+    "log_likelihood",
     "safe_log",
 ]

@@ -19,6 +19,7 @@ caller runs the dense computation instead.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from typing import NamedTuple
 
 import numpy as np
@@ -89,21 +90,53 @@ def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
     of a block's size; only the weights and their columns, which the CSR matrix keeps, grow with
     the number of triples.
     """
+    out = _Accumulator(*_sizes(inputs))
+    for block in _gated_blocks(inputs, margin):
+        if block is None:
+            return None
+        out.add(inputs.locales, *block)
+    return out.result(inputs)
+
+
+def gated_log_normalisers(inputs: EStepInputs, margin: float) -> np.ndarray | None:
+    """The log-normalisers of :func:`estep_gated` alone (bit for bit), without keeping its weights;
+    ``None`` where it would give way to the dense E-step."""
+    lse = np.empty(inputs.locales.shape[0])
+    for block in _gated_blocks(inputs, margin):
+        if block is None:
+            return None
+        lo, hi = block[0], block[1]
+        lse[lo:hi] = block[-1]
+    return lse
+
+
+def _sizes(inputs: EStepInputs) -> tuple[int, int, int]:
+    M, T, _ = inputs.positions.shape
+    return inputs.locales.shape[0], T, M
+
+
+_Block = tuple[int, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def _gated_blocks(inputs: EStepInputs, margin: float) -> Iterator[_Block | None]:
+    """The gated E-step a block of locales at a time: ``(lo, hi, local rows, times, platforms,
+    normalised weights, log-normalisers of rows lo .. hi - 1)`` for the kept triples, in order; a
+    ``None`` (and nothing after it) where the dense E-step should run instead."""
     source = _choose_source(inputs, margin)
     if source is None:
-        return None
+        yield None
+        return
     z, positions, r = inputs.locales, inputs.positions, inputs.r
     log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
-    M, T, _ = positions.shape
-    N = z.shape[0]
+    N, T, M = _sizes(inputs)
     budget = GATE_MAX_FRACTION * N * T * M
     const = log_const(r, T, M, log_tau is None, log_k is None)
-    out = _Accumulator(N, T, M)
     total = 0
     for lo, hi, row, t, plat, d2 in source.blocks():
         total += row.size
         if total > budget:
-            return None
+            yield None
+            return
         if d2 is None:
             d2 = _squared_distances(z, positions, row, t, plat)
         # The candidates' log weights, with the dense E-step's arithmetic (bit for bit the same).
@@ -114,7 +147,8 @@ def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
             a += log_k[row, plat]
         kept = _gate_block(a, row, plat, lo, hi, M, margin)
         if kept is None:
-            return None
+            yield None
+            return
         keep, best = kept
         if keep is not None:
             row, t, plat, a = row[keep], t[keep], plat[keep], a[keep]
@@ -123,8 +157,7 @@ def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
         np.exp(a, out=a)
         s = np.bincount(local, weights=a, minlength=hi - lo)
         a *= (1.0 / s)[local]
-        out.add(lo, hi, z, local, t, plat, a, best + np.log(s))
-    return out.result(inputs)
+        yield lo, hi, local, t, plat, a, best + np.log(s)
 
 
 def _squared_distances(
@@ -196,9 +229,9 @@ class _Accumulator:
 
     def add(
         self,
+        z: np.ndarray,
         lo: int,
         hi: int,
-        z: np.ndarray,
         local: np.ndarray,
         t: np.ndarray,
         plat: np.ndarray,

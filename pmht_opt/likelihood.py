@@ -99,10 +99,12 @@ class EStepInputs:
             self.r,
         )
 
-    def dense_blocks(self, out: np.ndarray) -> Iterator[tuple[int, int, np.ndarray]]:
+    def dense_blocks(self, out: np.ndarray | None) -> Iterator[tuple[int, int, np.ndarray]]:
         """Fill ``out (N, T*M)`` with the normalised weights of the locales ``(N, 2)`` against the paths
         ``(M, T, 2)``, a block of rows at a time; yields ``(i, j, log-normalisers of rows i..j)`` after
-        each block, so a caller can accumulate sums while the block is in cache."""
+        each block, so a caller can accumulate sums while the block is in cache. With ``out=None``
+        each block's weights go to one scratch block, overwritten by the next: for a caller that
+        wants the log-normalisers only."""
         M, T, _ = self.positions.shape
         N = self.locales.shape[0]
         TM = T * M
@@ -111,9 +113,12 @@ class EStepInputs:
         # Blocks of rows small enough to stay in cache through every pass.
         step = max(1, _BLOCK // TM)
         tmp = np.empty((min(step, N), TM))
+        scratch = out is None
+        target = np.empty_like(tmp) if out is None else out
         for i in range(0, N, step):
             j = min(i + step, N)
-            lse = _dense_rows(self.of_locales(i, j), p, const, out[i:j], tmp[: j - i])
+            rows = target[: j - i] if scratch else target[i:j]
+            lse = _dense_rows(self.of_locales(i, j), p, const, rows, tmp[: j - i])
             yield i, j, lse
 
 
