@@ -234,6 +234,23 @@ class EMRun:
         es = estep(self.scenario.locales, states[:, 1:, POS], self.log_tau, self.log_k, r, gate=self.gate)
         return es, self._log_prior(states, noise) + es.log_likelihood
 
+    def _next_estep(self, it: int, r: float, noise: np.ndarray | None) -> tuple[EStepResult, float]:
+        """The E-step of the current paths that feeds iteration ``it + 1``, and iteration ``it``'s
+        objective at its own ``r``.
+
+        During annealing the two penalties differ: the next iteration weighs with its ``r``, so at
+        this one only the objective is formed (:func:`~pmht_opt.estep.log_likelihood`: the same
+        number, without the weights).
+        """
+        schedule = self.schedule
+        if it < schedule.max_iter and schedule.r_at(it + 1) != r:
+            objective = self._log_prior(self.states, noise) + log_likelihood(
+                self.scenario.locales, self.states[:, 1:, POS], self.log_tau, self.log_k, r, gate=self.gate
+            )
+            es, _ = self._estep(self.states, schedule.r_at(it + 1))
+            return es, objective
+        return self._estep(self.states, r, noise)
+
     def _log_prior(self, states: np.ndarray, noise: np.ndarray | None) -> float:
         """``log P(X)`` up to its constant: from the M-step's process noise ``noise`` where the backend
         has it (see :meth:`_estep`), else from the states."""
@@ -290,15 +307,7 @@ class EMRun:
             self.estep = None
             del es
         t0 = time.perf_counter()
-        if it < schedule.max_iter and schedule.r_at(it + 1) != r:
-            # The objective is recorded at this iteration's r; the next iteration weighs with its own,
-            # so at this r only the objective is wanted (the same number, without the weights).
-            objective = self._log_prior(self.states, out.noise) + log_likelihood(
-                self.scenario.locales, self.states[:, 1:, POS], self.log_tau, self.log_k, r, gate=self.gate
-            )
-            es, _ = self._estep(self.states, schedule.r_at(it + 1))
-        else:
-            es, objective = self._estep(self.states, r, out.noise)
+        es, objective = self._next_estep(it, r, out.noise)
         estep_time = time.perf_counter() - t0
         self.estep = es
         self.iteration = it
