@@ -151,14 +151,24 @@ class EMRun:
     states
         ``(M, T+1, 6)`` current paths.
     estep
-        The E-step of the current paths (at the next iteration's ``r``). Without constraints it is
-        released once the M-step has used it, before the next one is formed (so ``None`` inside
-        that E-step, and for good if it was interrupted), and ``last_context.estep`` is ``None``.
+        The E-step of the current paths (at the next iteration's ``r``).
     iteration
         Iterations run so far.
     last_context
         The :class:`~pmht_opt.constraints.ConstraintContext` of the last M-step (``None`` before the
-        first): what its constraint rows were written from.
+        first): what its constraint rows were written from. Without constraints its ``estep`` is
+        ``None``: nothing reads it again, and it is released before the next E-step is formed.
+
+    Notes
+    -----
+    An iteration changes the run's state (paths, priors, E-step, iteration count) only once it has
+    finished, so an iteration interrupted by Ctrl-C or an error leaves the run as the last finished
+    iteration left it: :meth:`result` gives that plan and :meth:`step` runs the iteration again. The
+    E-step an M-step used is released before the next is formed, so that the weights of a large
+    dense E-step are never held twice; if the next one does not finish, :attr:`estep` is formed
+    again from the same inputs (the same numbers). With constraints one exception remains: the
+    context of the interrupted iteration has replaced that of the last finished one (keeping both
+    would hold a third set of weights), so :meth:`result` refuses until an iteration finishes.
     stop_reason
         ``None`` while the run goes on; then the name of the criterion that stopped it.
     """
@@ -212,8 +222,10 @@ class EMRun:
             self.snapshots[0] = self.states[:, :, POS].copy()
         t0 = time.perf_counter()
         r0 = self.schedule.r_at(1)
-        es, objective = self._estep(self.states, r0)
-        self.estep: EStepResult | None = es
+        es, objective = self._estep(self.states, r0, None, self.log_tau, self.log_k)
+        self._es: EStepResult | None = es
+        #: An iteration whose M-step replaced ``last_context`` but whose E-step did not finish.
+        self._unfinished: int | None = None
         self._initial = (objective, time.perf_counter() - t0, r0, es.gated)
         self._objectives = [objective]
         self._assignment = es.map_assignment()[0]
@@ -223,20 +235,28 @@ class EMRun:
     # ------------------------------------------------------------------ the loop
 
     def _estep(
-        self, states: np.ndarray, r: float, noise: np.ndarray | None = None
+        self,
+        states: np.ndarray,
+        r: float,
+        noise: np.ndarray | None,
+        log_tau: np.ndarray | None,
+        log_k: np.ndarray | None,
     ) -> tuple[EStepResult, float]:
-        """The E-step of ``states`` at ``r`` and the EM objective there.
+        """The E-step of ``states`` at ``r`` under the priors ``log_tau``, ``log_k``, and the EM
+        objective there.
 
         The prior term ``log P(X) = -1/2 sum ||u||^2`` comes from the M-step's process noise ``noise``
         when the backend has it: recomputed from the states it would be a difference of nearly equal
         numbers, which loses every digit when ``q dt^5`` is tiny against the positions.
         """
-        es = estep(self.scenario.locales, states[:, 1:, POS], self.log_tau, self.log_k, r, gate=self.gate)
+        es = estep(self.scenario.locales, states[:, 1:, POS], log_tau, log_k, r, gate=self.gate)
         return es, self._log_prior(states, noise) + es.log_likelihood
 
-    def _next_estep(self, it: int, r: float, noise: np.ndarray | None) -> tuple[EStepResult, float]:
-        """The E-step of the current paths that feeds iteration ``it + 1``, and iteration ``it``'s
-        objective at its own ``r``.
+    def _next_estep(
+        self, it: int, r: float, states: np.ndarray, noise: np.ndarray | None, priors: tuple[Any, Any]
+    ) -> tuple[EStepResult, float]:
+        """The E-step of iteration ``it``'s paths ``states`` that feeds iteration ``it + 1``, and
+        iteration ``it``'s objective at its own ``r``.
 
         During annealing the two penalties differ: the next iteration weighs with its ``r``, so at
         this one only the objective is formed (:func:`~pmht_opt.estep.log_likelihood`: the same
@@ -244,12 +264,12 @@ class EMRun:
         """
         schedule = self.schedule
         if it < schedule.max_iter and schedule.r_at(it + 1) != r:
-            objective = self._log_prior(self.states, noise) + log_likelihood(
-                self.scenario.locales, self.states[:, 1:, POS], self.log_tau, self.log_k, r, gate=self.gate
+            objective = self._log_prior(states, noise) + log_likelihood(
+                self.scenario.locales, states[:, 1:, POS], *priors, r, gate=self.gate
             )
-            es, _ = self._estep(self.states, schedule.r_at(it + 1))
+            es, _ = self._estep(states, schedule.r_at(it + 1), None, *priors)
             return es, objective
-        return self._estep(self.states, r, noise)
+        return self._estep(states, r, noise, *priors)
 
     def _log_prior(self, states: np.ndarray, noise: np.ndarray | None) -> float:
         """``log P(X)`` up to its constant: from the M-step's process noise ``noise`` where the backend
@@ -262,14 +282,14 @@ class EMRun:
         if fn is not None:
             validation.call_user(fn, self, value)
 
-    def _current_estep(self) -> EStepResult:
-        """The E-step of the current paths; :class:`ConfigError` if an interrupted iteration left none."""
-        if self.estep is None:
-            raise ConfigError(
-                "the last iteration stopped before its E-step was done, so the run has no weights for "
-                "its paths; start a new EMRun."
-            )
-        return self.estep
+    @property
+    def estep(self) -> EStepResult:
+        """The E-step of the current paths, at the next iteration's ``r`` (formed again, with the same
+        numbers, if an interrupted iteration had released it)."""
+        if self._es is None:
+            r = self.schedule.r_at(min(self.iteration + 1, self.schedule.max_iter))
+            self._es = self._estep(self.states, r, None, self.log_tau, self.log_k)[0]
+        return self._es
 
     @property
     def done(self) -> bool:
@@ -284,32 +304,31 @@ class EMRun:
         cfg, schedule = self.config, self.schedule
         it = self.iteration + 1
         r = schedule.r_at(it)
-        es = self._current_estep()
-        if cfg.update_time_prior:
-            self.log_tau = safe_log(es.time_prior())
-        if cfg.update_platform_prior:
-            self.log_k = safe_log(es.platform_prior())
+        es = self.estep
+        log_tau = safe_log(es.time_prior()) if cfg.update_time_prior else self.log_tau
+        log_k = safe_log(es.platform_prior()) if cfg.update_platform_prior else self.log_k
         ctx = ConstraintContext(scenario=self.scenario, states=self.states, estep=es, iteration=it)
         active = schedule.active(cfg.constraints, it)
         strengths = schedule.strengths(cfg.constraints, it)
         t0 = time.perf_counter()
         out = self.mstep.solve(MStepData(W=es.W, WZ=es.WZ, r=r, ctx=ctx, active=active, strengths=strengths))
         mstep_time = time.perf_counter() - t0
-        self.last_context = ctx
         self._notify(self.callbacks.after_mstep, out)
         path_change = float(np.max(np.abs(out.states[:, :, POS] - self.states[:, :, POS])))
-        self.states = out.states
-        if not cfg.constraints:
-            # Nothing reads this E-step again (with constraints, ``last_context`` keeps it for their
-            # reports): let it go before the next one is formed, so that the weights of a large
-            # dense E-step are never held twice.
+        # The used E-step goes before the next is formed (class notes). With constraints the new
+        # context keeps it for their reports and replaces the previous one now, which holds the
+        # E-step before it.
+        self._es = None
+        if cfg.constraints:
+            self.last_context, self._unfinished = ctx, it
+        else:
             ctx.estep = None
-            self.estep = None
-            del es
+        del es
         t0 = time.perf_counter()
-        es, objective = self._next_estep(it, r, out.noise)
+        es, objective = self._next_estep(it, r, out.states, out.noise, (log_tau, log_k))
         estep_time = time.perf_counter() - t0
-        self.estep = es
+        self.states, self.log_tau, self.log_k, self._es = out.states, log_tau, log_k, es
+        self.last_context, self._unfinished = ctx, None
         self.iteration = it
         self._objectives.append(objective)
         assignment = es.map_assignment()[0]
@@ -391,7 +410,13 @@ class EMRun:
         scenario, cfg = self.scenario, self.config
         validation.check_finite_plan(self.states, self.solver)
         N, M = scenario.n_locales, scenario.n_platforms
-        es = self._current_estep()
+        if self._unfinished is not None:
+            raise ConfigError(
+                f"iteration {self._unfinished} stopped after its M-step, and the constraints' context of "
+                f"iteration {self.iteration} it replaced is gone, so the plan's constraint reports cannot "
+                "be formed: step() again to finish an iteration first."
+            )
+        es = self.estep
         assignment, visit_time = es.map_assignment()
         reports: tuple[Any, ...] = ()
         if cfg.constraints and self.last_context is not None:

@@ -161,29 +161,37 @@ def test_final_estep_is_kept_compactly() -> None:
         np.testing.assert_allclose(es.visit_time_distribution(n).sum(), 1.0, atol=1e-9)
 
 
-def test_without_constraints_the_used_estep_is_released_before_the_next() -> None:
-    """A run without constraints holds one E-step's weights at a time: the one an M-step used is
-    gone (nothing of the run refers to it) once the next is formed, while the run's own ``estep`` is
-    always the current one between iterations."""
+def test_without_constraints_the_used_estep_is_released_before_the_next(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A run without constraints holds one E-step's weights at a time: whenever an E-step is formed,
+    every earlier one is gone (nothing of the run refers to it), annealing's objective-only E-steps
+    included; the run's own ``estep`` is the current one between iterations."""
     import gc
     import weakref
 
+    from pmht_opt import em
+
+    formed: list[weakref.ref[object]] = []
+    alive_at_each_call: list[int] = []
+    real = em.estep
+
+    def counting(*args: object, **kwargs: object) -> object:
+        gc.collect()
+        alive_at_each_call.append(sum(ref() is not None for ref in formed))
+        es = real(*args, **kwargs)  # type: ignore[arg-type]
+        formed.append(weakref.ref(es))
+        return es
+
+    monkeypatch.setattr(em, "estep", counting)
     sc = small_scenario(seed=4)
-    seen: list[weakref.ref[object]] = []
-    during: list[object] = []
-    callbacks = po.EMCallbacks(
-        after_estep=lambda run, es: seen.append(weakref.ref(es)),
-        after_mstep=lambda run, out: during.append(run.estep),  # still there for the observers
-    )
-    with po.EMRun(sc, po.PMHTConfig(max_iter=4, anneal=po.Anneal(1.0, 2)), callbacks=callbacks) as run:
-        for _ in range(4):
+    with po.EMRun(sc, po.PMHTConfig(max_iter=5, anneal=po.Anneal(1.0, 3))) as run:
+        for _ in range(5):
             run.step()
-            during.clear()
-            gc.collect()
-            assert run.estep is not None and seen[-1]() is run.estep
-            assert all(ref() is None for ref in seen[:-1])
+            assert formed[-1]() is run.estep
             assert run.last_context is not None and run.last_context.estep is None
         assert np.all(np.isfinite(run.result().positions))
+    assert len(alive_at_each_call) == 6 and alive_at_each_call == [0] * 6
 
 
 def test_with_constraints_the_last_context_keeps_its_estep() -> None:
@@ -195,22 +203,66 @@ def test_with_constraints_the_last_context_keeps_its_estep() -> None:
         assert run.last_context is not None and run.last_context.estep is used
 
 
-def test_a_run_interrupted_in_its_estep_says_so(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Ctrl-C inside an E-step (after the used one was released) leaves a run that refuses to go on
-    or to give a plan, by name, instead of failing on a missing attribute."""
+class _InterruptOnce:
+    """``em.estep`` that raises ``KeyboardInterrupt`` on its ``n``-th call, as Ctrl-C would."""
+
+    def __init__(self, n: int) -> None:
+        from pmht_opt import em
+
+        self.real, self.calls, self.n = em.estep, 0, n
+
+    def __call__(self, *args: object, **kwargs: object) -> object:
+        self.calls += 1
+        if self.calls == self.n:
+            raise KeyboardInterrupt
+        return self.real(*args, **kwargs)  # type: ignore[arg-type]
+
+
+def test_an_interrupted_iteration_leaves_the_last_finished_one(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C in an E-step (after the used one was released) leaves the run as the last finished
+    iteration left it: its plan is that of a run stopped there, and stepping on gives the plan of a
+    run never interrupted, to the last digit."""
     from pmht_opt import em
 
     sc = small_scenario(seed=4)
-    with po.EMRun(sc, po.PMHTConfig(max_iter=5, anneal=None)) as run:
+    cfg = po.PMHTConfig(max_iter=5, anneal=None)
+    whole = po.plan_pmht(sc, cfg)
+    two = po.plan_pmht(sc, po.PMHTConfig(max_iter=2, anneal=None))
+    with po.EMRun(sc, cfg) as run:
         run.step()
-
-        def interrupted(*args: object, **kwargs: object) -> None:
-            raise KeyboardInterrupt
-
-        monkeypatch.setattr(em, "estep", interrupted)
+        run.step()
+        monkeypatch.setattr(em, "estep", _InterruptOnce(1))
         with pytest.raises(KeyboardInterrupt):
             run.step()
-        monkeypatch.undo()
-        for action in (run.step, run.result):
-            with pytest.raises(po.ConfigError, match="stopped before its E-step was done"):
-                action()
+        assert run.iteration == 2
+        stopped = run.result()
+        np.testing.assert_array_equal(stopped.positions, two.positions)
+        np.testing.assert_array_equal(stopped.estep.log_normaliser, two.estep.log_normaliser)
+        np.testing.assert_array_equal(stopped.history.objective, two.history.objective)
+        while not run.done:
+            run.step()
+        np.testing.assert_array_equal(run.result().positions, whole.positions)
+        np.testing.assert_array_equal(run.result().history.objective, whole.history.objective)
+
+
+def test_a_constrained_run_interrupted_after_its_mstep_gives_no_stale_plan(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """With constraints the interrupted iteration's context has replaced the finished one's, so the
+    run refuses a plan (by name) until an iteration finishes; it never returns paths with the
+    reports of another iteration."""
+    from pmht_opt import em
+
+    sc = small_scenario(seed=4)
+    cfg = po.PMHTConfig(max_iter=4, anneal=None, solver="clarabel", constraints=[po.AreaBounds(0, 4, 0, 4)])
+    with po.EMRun(sc, cfg) as run:
+        run.step()
+        monkeypatch.setattr(em, "estep", _InterruptOnce(1))
+        with pytest.raises(KeyboardInterrupt):
+            run.step()
+        with pytest.raises(po.ConfigError, match="iteration 2 stopped after its M-step"):
+            run.result()
+        run.step()
+        assert run.iteration == 2
+        res = run.result()
+        assert all(rep.satisfied for rep in res.reports)

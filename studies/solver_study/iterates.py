@@ -88,7 +88,6 @@ class Iterate:
 def _step(run: EMRun) -> Step:
     """The M-step ``run`` is about to solve."""
     it = run.iteration + 1
-    assert run.estep is not None  # between iterations a run always has its E-step
     return Step(states=run.states, estep=run.estep, r=run.schedule.r_at(it), iteration=it)
 
 
