@@ -223,6 +223,16 @@ def log_likelihood(
 
     Annealing scores each iteration at its own ``r`` but weighs the next one at the next ``r``, so
     every annealing iteration needs an objective at a penalty whose weights are never used.
+
+    Parameters
+    ----------
+    locales, positions, log_time_prior, log_platform_prior, r, gate
+        As for :func:`estep`.
+
+    Returns
+    -------
+    float
+        ``sum_n log sum_{t,m} pi^tau[n,t] pi^k[n,m] zeta(z_n | x_t^m)``.
     """
     M, T, _ = positions.shape
     margin = gate_margin(gate, T, M)
@@ -238,7 +248,7 @@ def log_likelihood(
 def _dense_to_csr(w: np.ndarray, floor: float) -> sp.csr_matrix:
     """The entries of ``w`` at or above ``floor`` as CSR (the matrix ``scipy`` builds from the
     floored array), formed a few rows at a time: a pass to count each row's entries, a pass to copy
-    them, and nothing allocated but the result."""
+    them, and nothing of the weights' size allocated but the result."""
     N, C = w.shape
     step = max(1, (1 << 20) // max(C, 1))
     indptr = np.zeros(N + 1, dtype=np.int64)
@@ -247,7 +257,7 @@ def _dense_to_csr(w: np.ndarray, floor: float) -> sp.csr_matrix:
         indptr[lo + 1 : lo + 1 + block.shape[0]] = np.count_nonzero(_kept(block, floor), axis=1)
     np.cumsum(indptr, out=indptr)
     index = np.int32 if max(int(indptr[-1]), C) <= np.iinfo(np.int32).max else np.int64
-    data = np.empty(int(indptr[-1]))
+    data = np.empty(int(indptr[-1]), dtype=w.dtype)
     cols = np.empty(int(indptr[-1]), dtype=index)
     for lo in range(0, N, step):
         block = w[lo : lo + step]

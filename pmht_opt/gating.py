@@ -111,6 +111,7 @@ def gated_log_normalisers(inputs: EStepInputs, margin: float) -> np.ndarray | No
 
 
 def _sizes(inputs: EStepInputs) -> tuple[int, int, int]:
+    """``(N, T, M)`` of an E-step's inputs."""
     M, T, _ = inputs.positions.shape
     return inputs.locales.shape[0], T, M
 

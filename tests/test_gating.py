@@ -356,3 +356,34 @@ def test_the_objective_alone_is_the_estep_s_bit_for_bit(
         assert log_likelihood(z, pos, lt, lk, r, gate=gate) == es.log_likelihood
     finally:
         candidates._BLOCK = old
+
+
+def test_the_objective_alone_follows_a_gate_given_up_midway(monkeypatch: Any) -> None:
+    """The gate gives up after some blocks (its estimate said few candidates, the search finds too
+    many) and the dense E-step runs, in several dense blocks with a shorter last one: the objective
+    computed alone follows the same path and gives the same number, bit for bit."""
+    import math
+
+    from pmht_opt import candidates, gating, likelihood
+    from pmht_opt.estep import log_likelihood
+
+    monkeypatch.setattr(candidates.TreeCandidates, "estimate", lambda self, limit=math.inf: 0.0)
+    monkeypatch.setattr(candidates, "_BLOCK", 64)
+    monkeypatch.setattr(likelihood, "_BLOCK", 4096)
+    seen: list[str] = []
+    real = gating._gated_blocks
+
+    def recording(*args: Any) -> Any:
+        for block in real(*args):
+            seen.append("block" if block is not None else "gave up")
+            yield block
+
+    monkeypatch.setattr(gating, "_gated_blocks", recording)
+    z, pos, lt, lk, r = _case(5, "uniform", 0.03)
+    es = estep(z, pos, lt, lk, r, gate="auto")
+    assert not es.gated and seen[-1] == "gave up" and seen.count("block") > 1
+    T, M = pos.shape[1], pos.shape[0]
+    assert z.shape[0] % (4096 // (T * M)) != 0  # the dense E-step's last block is a short one
+    seen.clear()
+    assert log_likelihood(z, pos, lt, lk, r, gate="auto") == es.log_likelihood
+    assert seen[-1] == "gave up" and seen.count("block") > 1
