@@ -158,19 +158,20 @@ class EMRun:
         The :class:`~pmht_opt.constraints.ConstraintContext` of the last M-step (``None`` before the
         first): what its constraint rows were written from. Without constraints its ``estep`` is
         ``None``: nothing reads it again, and it is released before the next E-step is formed.
+    stop_reason
+        ``None`` while the run goes on; then the name of the criterion that stopped it.
 
     Notes
     -----
     An iteration changes the run's state (paths, priors, E-step, iteration count) only once it has
     finished, so an iteration interrupted by Ctrl-C or an error leaves the run as the last finished
-    iteration left it: :meth:`result` gives that plan and :meth:`step` runs the iteration again. The
-    E-step an M-step used is released before the next is formed, so that the weights of a large
-    dense E-step are never held twice; if the next one does not finish, :attr:`estep` is formed
-    again from the same inputs (the same numbers). With constraints one exception remains: the
-    context of the interrupted iteration has replaced that of the last finished one (keeping both
-    would hold a third set of weights), so :meth:`result` refuses until an iteration finishes.
-    stop_reason
-        ``None`` while the run goes on; then the name of the criterion that stopped it.
+    iteration left it: :meth:`result` gives that plan and :meth:`step` runs the iteration again.
+    Without constraints the E-step an M-step used is released before the next is formed, so that the
+    weights of a large dense E-step are never held twice; if the next one does not finish,
+    :attr:`estep` is formed again from the same inputs (the same numbers). With constraints one
+    exception remains: the context of the interrupted iteration has replaced that of the last
+    finished one (keeping both would hold a third set of weights), so :meth:`result` refuses until
+    an iteration finishes.
     """
 
     @validation.plan_boundary("setting up the plan")
@@ -315,14 +316,13 @@ class EMRun:
         mstep_time = time.perf_counter() - t0
         self._notify(self.callbacks.after_mstep, out)
         path_change = float(np.max(np.abs(out.states[:, :, POS] - self.states[:, :, POS])))
-        # The used E-step goes before the next is formed (class notes). With constraints the new
-        # context keeps it for their reports and replaces the previous one now, which holds the
-        # E-step before it.
-        self._es = None
+        # Without constraints the used E-step goes before the next is formed (class notes). With them
+        # the new context keeps it for their reports (the run may as well) and replaces the previous
+        # context now, which holds the E-step before it.
         if cfg.constraints:
             self.last_context, self._unfinished = ctx, it
         else:
-            ctx.estep = None
+            ctx.estep = self._es = None
         del es
         t0 = time.perf_counter()
         es, objective = self._next_estep(it, r, out.states, out.noise, (log_tau, log_k))
