@@ -25,7 +25,7 @@ from pmht_opt.constraints.base import ConstraintContext
 from pmht_opt.constraints.feasibility import check_feasible
 from pmht_opt.estep import EStepResult, estep, gate_margin, log_likelihood, safe_log
 from pmht_opt.exceptions import ConfigError, ScenarioError
-from pmht_opt.model import POS, STATE_DIM
+from pmht_opt.model import POS
 from pmht_opt.mstep.base import MStepData, MStepOutput
 from pmht_opt.mstep.registry import make_mstep, resolve
 from pmht_opt.planner import PMHTConfig
@@ -95,41 +95,6 @@ def with_progress(
     return EMCallbacks(base.after_estep, base.after_mstep, after)
 
 
-def _initial_log_prior(name: str, prior: Any, shape: tuple[int, int]) -> np.ndarray | None:
-    if prior is None:
-        return None
-    arr = validation.real_array(name, prior, ScenarioError)
-    if arr.shape != shape:
-        raise ScenarioError(f"{name} must have shape {shape}, got {arr.shape}.")
-    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
-        raise ScenarioError(f"{name} must be finite and non-negative.")
-    with np.errstate(over="ignore"):  # an overflowing row is handled below
-        sums = arr.sum(axis=1)
-    if np.any(sums <= 0):
-        raise ScenarioError(f"{name} has a locale (row {int(np.argmin(sums))}) with no mass.")
-    if not np.all(np.isfinite(sums)):
-        # Entries so large that a row's sum overflows: scale each row by its largest entry first.
-        arr = arr / arr.max(axis=1)[:, None]
-        sums = arr.sum(axis=1)
-    return safe_log(arr / sums[:, None])
-
-
-def _initial_paths(scenario: Scenario, paths: Any) -> np.ndarray:
-    x0 = scenario.initial_states
-    M, T = scenario.n_platforms, scenario.horizon
-    if paths is None:
-        # Every platform standing still at its start.
-        return np.repeat(x0[:, None, :], T + 1, axis=1)
-    arr = validation.real_array("initial_paths", paths, ScenarioError)
-    if arr.shape != (M, T + 1, STATE_DIM):
-        raise ScenarioError(f"initial_paths must have shape {(M, T + 1, STATE_DIM)}, got {arr.shape}.")
-    if not np.all(np.isfinite(arr)):
-        raise ScenarioError("initial_paths contains NaN or infinite values.")
-    if not np.allclose(arr[:, 0], x0):
-        raise ScenarioError("initial_paths must start (t = 0) at the scenario's start states.")
-    return arr.copy()
-
-
 class EMRun:
     """One run of the PMHT planner's EM, from the standing (or given) paths to a plan.
 
@@ -156,22 +121,20 @@ class EMRun:
         Iterations run so far.
     last_context
         The :class:`~pmht_opt.constraints.ConstraintContext` of the last M-step (``None`` before the
-        first): what its constraint rows were written from. Without constraints its ``estep`` is
-        ``None``: nothing reads it again, and it is released before the next E-step is formed.
+        first): what its constraint rows were written from; its ``estep`` is ``None`` without
+        constraints (released, see the notes).
     stop_reason
         ``None`` while the run goes on; then the name of the criterion that stopped it.
 
     Notes
     -----
     An iteration changes the run's state (paths, priors, E-step, iteration count) only once it has
-    finished, so an iteration interrupted by Ctrl-C or an error leaves the run as the last finished
-    iteration left it: :meth:`result` gives that plan and :meth:`step` runs the iteration again.
-    Without constraints the E-step an M-step used is released before the next is formed, so that the
-    weights of a large dense E-step are never held twice; if the next one does not finish,
-    :attr:`estep` is formed again from the same inputs (the same numbers). With constraints one
-    exception remains: the context of the interrupted iteration has replaced that of the last
-    finished one (keeping both would hold a third set of weights), so :meth:`result` refuses until
-    an iteration finishes.
+    finished: after Ctrl-C or an error the run is the last finished iteration's, :meth:`result` gives
+    that plan and :meth:`step` runs the iteration again. Without constraints the E-step an M-step used
+    is released before the next is formed (a large dense E-step's weights are never held twice) and,
+    if the next does not finish, :attr:`estep` is formed again from the same inputs. With
+    constraints the interrupted iteration's context has already replaced the finished one's (keeping
+    both would hold a third set of weights), so :meth:`result` refuses until an iteration finishes.
     """
 
     @validation.plan_boundary("setting up the plan")
@@ -196,9 +159,9 @@ class EMRun:
         self.scenario = scenario
         self.config = cfg
         self.callbacks = callbacks if callbacks is not None else EMCallbacks()
-        self.log_tau = _initial_log_prior("time_prior", time_prior, (N, T))
-        self.log_k = _initial_log_prior("platform_prior", platform_prior, (N, M))
-        self.states = _initial_paths(scenario, initial_paths)
+        self.log_tau = validation.log_prior_rows("time_prior", time_prior, (N, T), ScenarioError)
+        self.log_k = validation.log_prior_rows("platform_prior", platform_prior, (N, M), ScenarioError)
+        self.states = validation.initial_paths(scenario.initial_states, T, initial_paths, ScenarioError)
         for con in cfg.constraints:
             con.check_scenario(scenario)
         check_feasible(scenario, cfg.constraints)
@@ -254,7 +217,12 @@ class EMRun:
         return es, self._log_prior(states, noise) + es.log_likelihood
 
     def _next_estep(
-        self, it: int, r: float, states: np.ndarray, noise: np.ndarray | None, priors: tuple[Any, Any]
+        self,
+        it: int,
+        r: float,
+        states: np.ndarray,
+        noise: np.ndarray | None,
+        priors: tuple[np.ndarray | None, np.ndarray | None],
     ) -> tuple[EStepResult, float]:
         """The E-step of iteration ``it``'s paths ``states`` that feeds iteration ``it + 1``, and
         iteration ``it``'s objective at its own ``r``.

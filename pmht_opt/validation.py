@@ -277,6 +277,48 @@ def writing(path: Any) -> Iterator[Path]:
 # ------------------------------------------------------------------ inside a plan
 
 
+def log_prior_rows(
+    field: str, value: Any, shape: tuple[int, int], error: type[PmhtOptError]
+) -> np.ndarray | None:
+    """A prior given per locale (rows of non-negative weights, each row normalised here) as its log,
+    ``None`` for ``None`` (uniform); ``error`` naming ``field`` for a wrong shape, a negative or
+    non-finite entry or a row without mass. Rows whose sum overflows are scaled by their largest
+    entry first."""
+    if value is None:
+        return None
+    arr = real_array(field, value, error)
+    if arr.shape != shape:
+        raise error(f"{field} must have shape {shape}, got {arr.shape}.")
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise error(f"{field} must be finite and non-negative.")
+    with np.errstate(over="ignore"):  # an overflowing row is handled below
+        sums = arr.sum(axis=1)
+    if np.any(sums <= 0):
+        raise error(f"{field} has a locale (row {int(np.argmin(sums))}) with no mass.")
+    if not np.all(np.isfinite(sums)):
+        arr = arr / arr.max(axis=1)[:, None]
+        sums = arr.sum(axis=1)
+    with np.errstate(divide="ignore"):  # a zero prior is log 0 = -inf
+        return np.log(arr / sums[:, None])
+
+
+def initial_paths(x0: np.ndarray, horizon: int, value: Any, error: type[PmhtOptError]) -> np.ndarray:
+    """Paths ``(M, horizon + 1, n)`` to start an EM from, starting at the states ``x0 (M, n)``
+    (a copy); for ``None``, every platform standing still at its start. ``error`` naming
+    ``initial_paths`` for a wrong shape, a non-finite value or another start."""
+    shape = (x0.shape[0], horizon + 1, x0.shape[1])
+    if value is None:
+        return np.repeat(x0[:, None, :], horizon + 1, axis=1)
+    arr = real_array("initial_paths", value, error)
+    if arr.shape != shape:
+        raise error(f"initial_paths must have shape {shape}, got {arr.shape}.")
+    if not np.all(np.isfinite(arr)):
+        raise error("initial_paths contains NaN or infinite values.")
+    if not np.allclose(arr[:, 0], x0):
+        raise error("initial_paths must start (t = 0) at the scenario's start states.")
+    return arr.copy()
+
+
 def check_finite_plan(states: np.ndarray, backend: str) -> None:
     """:class:`SolverError` unless every state of the plan is finite: no plan with a NaN or an
     infinity is ever returned."""
