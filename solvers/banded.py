@@ -45,8 +45,9 @@ penalty becomes ``sigma_t = w_t (h' diag(d))^2 / r``, a signal-to-noise ratio pe
 ``[lam_1, x_1, lam_2, x_2, ...]`` the matrix is banded with half-bandwidth ``n`` when ``F`` is
 upper triangular and ``h`` picks one component (``2n - 1`` in general; no other order of a step's
 unknowns gives a narrower band). The systems of the batch are stacked into one block-diagonal
-band and the ``K`` columns share the factorisation, so one LAPACK ``gbsv`` (LU with partial
-pivoting) per call factorises the whole batch.
+band and the ``K`` columns share the factorisation: one LAPACK ``gbsv`` (LU with partial
+pivoting) per call factorises the whole batch, or one per group of systems on concurrent threads
+(:mod:`solvers.band_lu`), with the same result to the last bit.
 
 Partial pivoting alone gives a small *normwise* backward error only: depending on the rows it picks,
 parts of the elimination follow the information form above, and on long coasting stretches with a
@@ -72,12 +73,15 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.linalg import lapack
 
+from solvers.band_lu import BandLU
 from solvers.exceptions import ProblemError
 from solvers.problem import dense
 
 __all__ = ["BandedSmoother", "BandedSmootherResult", "banded_smoother"]
+
+#: Steps of the batch (systems times horizon) per thread below which a solve is not split.
+MIN_STEPS_PER_THREAD = 1000
 
 
 @dataclass
@@ -254,6 +258,7 @@ class BandedSmoother:
         *,
         refine: int = 1,
         check: bool = False,
+        threads: int = 1,
     ) -> BandedSmootherResult:
         """Smooth the batch for these weights and measurements.
 
@@ -276,6 +281,10 @@ class BandedSmoother:
         check
             Also compute the componentwise backward error of the final solution (reported in
             :attr:`BandedSmootherResult.backward_error`), at the cost of two residual evaluations.
+        threads
+            Factorise and solve the systems of the batch in up to this many groups on concurrent
+            threads (:class:`solvers.band_lu.BandLU`; LAPACK runs without the interpreter lock). The
+            answer is the same to the last bit for any number.
 
         Returns
         -------
@@ -302,19 +311,32 @@ class BandedSmoother:
         for index, value in zip(self._pen_index, self._pen_value, strict=True):
             flat[index] += rho * value
         b = rhs.reshape(K, self.N).T  # (N, K), column-major: LAPACK works on it in place
-        lu, piv, x, info = lapack.dgbsv(self.k, self.k, band.T, b, overwrite_ab=1, overwrite_b=1)
-        if info != 0:
+        try:
+            lu = BandLU(band.T, self.k, b, self._parts(threads))
+        except np.linalg.LinAlgError as err:
             raise ProblemError(
-                f"The KKT matrix is numerically singular (LAPACK gbsv info={info}): "
-                "the weights or r are out of range."
-            )
-        z = np.asarray(x).T.reshape(rhs.shape)
+                f"The KKT matrix is numerically singular ({err}): the weights or r are out of range."
+            ) from None
+        z = b.T.reshape(rhs.shape)  # b was solved in place (``rhs.reshape`` may have copied)
         for _ in range(int(refine)):
-            z += self._lu_solve(lu, piv, self._residual(z, xs0, yk, rho))
+            correction = self._residual(z, xs0, yk, rho).reshape(K, self.N).T
+            lu.solve(correction)
+            z += correction.T.reshape(z.shape)
         if not np.all(np.isfinite(z)):
             raise ProblemError("The solve produced non-finite values: the data are out of range.")
         backward_error = self._backward_error(z, xs0, yk, rho) if check else None
         return self._result(z, x0, yk, rho, backward_error)
+
+    def _parts(self, threads: int) -> list[tuple[int, int]]:
+        """Rows ``[lo, hi)`` of up to ``threads`` groups of whole systems of the batch: one group when
+        the band is too small for a thread to pay (about 2000 steps of a system per group)."""
+        if isinstance(threads, bool) or int(threads) != threads or threads < 1:
+            raise ProblemError(f"threads must be a positive integer, got {threads!r}.")
+        groups = min(int(threads), self.B, max(1, (self.T * self.B) // MIN_STEPS_PER_THREAD))
+        rows = 2 * self.n * self.T
+        bounds = [len(g) for g in np.array_split(np.arange(self.B), groups)]
+        ends = np.cumsum(bounds) * rows
+        return [(int(lo), int(hi)) for lo, hi in zip(np.r_[0, ends[:-1]], ends, strict=True)]
 
     def _data(
         self, r: float, x0: ArrayLike, y: ArrayLike, weight: ArrayLike, refine: int
@@ -365,14 +387,6 @@ class BandedSmoother:
             fit=fit,
             backward_error=backward_error,
         )
-
-    def _lu_solve(self, lu: np.ndarray, piv: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-        """Solve with the LU factors, in place, for ``(K, B, T, 2n)`` right-hand sides."""
-        b = rhs.reshape(-1, self.N).T  # (N, K), column-major: LAPACK works on it in place
-        x, info = lapack.dgbtrs(lu, self.k, self.k, b, piv, overwrite_b=1)
-        if info != 0:  # pragma: no cover - gbtrs only reports invalid arguments
-            raise ProblemError(f"LAPACK gbtrs failed (info={info}).")
-        return np.asarray(x).T.reshape(rhs.shape)
 
     def _residual(self, z: np.ndarray, xs0: np.ndarray, yk: np.ndarray, rho: np.ndarray) -> np.ndarray:
         """``b - A z`` of the scaled KKT system, evaluated from its block form.
@@ -430,6 +444,7 @@ def banded_smoother(
     *,
     refine: int = 1,
     check: bool = False,
+    threads: int = 1,
 ) -> BandedSmootherResult:
     """Smooth a batch of systems sharing ``(F, Q, h, r)``: exact, one banded LU for the batch.
 
@@ -451,7 +466,7 @@ def banded_smoother(
         ``(B, T, K)`` measurements for ``t = 1..T``.
     weight
         ``(B, T)`` non-negative weights: the measurement variance at step ``t`` is ``r / w_t``.
-    refine, check
+    refine, check, threads
         See :meth:`BandedSmoother.solve`.
 
     Returns
@@ -485,4 +500,4 @@ def banded_smoother(
             _CACHE[key] = smoother
             while len(_CACHE) > _CACHE_SIZE:
                 _CACHE.popitem(last=False)
-    return smoother.solve(r, x0, y, weight, refine=refine, check=check)
+    return smoother.solve(r, x0, y, weight, refine=refine, check=check, threads=threads)

@@ -454,6 +454,92 @@ def test_instance_is_reusable_across_threads_and_pickles() -> None:
     np.testing.assert_array_equal(clone.solve(1e-2, x0, y, W).means, expected[0])
 
 
+@pytest.mark.parametrize("kind", ["random", "coast"])
+def test_threads_change_no_digit(kind: str) -> None:
+    """The batch split over threads gives the single-threaded answer bit for bit."""
+    rng = np.random.default_rng(11)
+    F, Q = ca_model(0.1, 1e-4)
+    W, y, x0 = make_batch(rng, 5, 1200, kind=kind)
+    sm = BandedSmoother(F, Q, E1, 1200, 5)
+    assert len(sm._parts(3)) == 3  # the size is large enough to be split
+    one = sm.solve(1e-2, x0, y, W, threads=1, check=True)
+    for threads in (2, 3, 8):
+        got = sm.solve(1e-2, x0, y, W, threads=threads, check=True)
+        for name in ("means", "noise", "prior", "fit"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(one, name), err_msg=name)
+        assert got.backward_error == one.backward_error
+
+
+def test_band_lu_parts_equal_lapack_whole() -> None:
+    """A block-diagonal band factorised and solved part by part equals LAPACK on the whole band, bit
+    for bit, through the threads and through the single-threaded fallback."""
+    from solvers import band_lu
+
+    rng = np.random.default_rng(12)
+    k, sizes = 3, (700, 500, 900)
+    N = sum(sizes)
+    dense_blocks = [np.triu(np.tril(rng.normal(size=(n, n)), k), -k) for n in sizes]
+    A = scipy.linalg.block_diag(*dense_blocks)
+    band = np.zeros((3 * k + 1, N), order="F")
+    for d in range(-k, k + 1):
+        diag = np.diagonal(A, d)
+        if d >= 0:
+            band[2 * k - d, d:] = diag
+        else:
+            band[2 * k - d, : N + d] = diag
+    rhs = np.asfortranarray(rng.normal(size=(N, 2)))
+    _lu, _piv, x_ref, info = scipy.linalg.lapack.dgbsv(k, k, band.copy(order="F"), rhs.copy(order="F"))
+    assert info == 0
+    ends = np.cumsum(sizes)
+    parts = list(zip(np.r_[0, ends[:-1]].tolist(), ends.tolist(), strict=True))
+    for chosen in ([(0, N)], parts):
+        b = rhs.copy(order="F")
+        fact = band_lu.BandLU(band.copy(order="F"), k, b, chosen)
+        np.testing.assert_array_equal(b, x_ref)
+        again = rhs.copy(order="F")
+        fact.solve(again)
+        np.testing.assert_array_equal(again, x_ref)
+    np.testing.assert_allclose(A @ x_ref, rhs, atol=1e-9)
+
+
+def test_band_lu_without_exported_lapack(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where SciPy exports no LAPACK pointers, the f2py path gives the same answer on one thread."""
+    from solvers import band_lu
+
+    rng = np.random.default_rng(13)
+    F, Q = ca_model(0.1, 1e-4)
+    W, y, x0 = make_batch(rng, 4, 600, kind="coast")
+    sm = BandedSmoother(F, Q, E1, 600, 4)
+    expected = sm.solve(1e-2, x0, y, W, threads=2)
+    monkeypatch.setattr(band_lu, "_GBSV", None)
+    got = sm.solve(1e-2, x0, y, W, threads=2)
+    np.testing.assert_array_equal(got.means, expected.means)
+
+
+def test_band_lu_refuses_c_ordered_arrays() -> None:
+    from solvers.band_lu import BandLU
+
+    with pytest.raises(ValueError, match="Fortran"):
+        BandLU(np.zeros((10, 20)), 3, np.zeros((20, 2)), [(0, 20)])
+
+
+@pytest.mark.parametrize("threads", [0, -1, 1.5, True])
+def test_bad_threads_raise(threads: object) -> None:
+    F, Q, W, y, x0 = _good()
+    with pytest.raises(ProblemError, match="threads"):
+        banded_smoother(F, Q, E1, 1e-2, x0, y, W, threads=threads)  # type: ignore[arg-type]
+
+
+def test_singular_system_is_a_problem_error() -> None:
+    """A zero pivot is a ProblemError naming the singular system, not a LAPACK code."""
+    F, Q = ca_model(1.0, 1e-8)
+    W, y, x0 = make_batch(np.random.default_rng(14), 2, 50)
+    sm = BandedSmoother(F, Q, E1, 50, 2)
+    sm._band_T[:] = 0.0  # every entry of the assembled matrix zero: singular
+    with pytest.raises(ProblemError, match="singular"):
+        sm.solve(1e-2, x0, y, np.zeros_like(W))
+
+
 # -- bad inputs ----------------------------------------------------------------------------------
 
 

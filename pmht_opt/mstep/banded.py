@@ -37,7 +37,7 @@ class BandedMStep(MStep):
         zt, W = data.synthetic()
         x0 = np.stack([self.x0[:, 0:3], self.x0[:, 3:6]], axis=-1)  # (M, 3, 2)
         try:
-            return self.smoother.solve(data.r, x0, zt.transpose(1, 0, 2), W.T, refine=1)
+            return self.smoother.solve(data.r, x0, zt.transpose(1, 0, 2), W.T, refine=1, threads=self.threads)
         except solvers.ProblemError as err:
             raise SolverError(f"banded: the M-step cannot be solved: {err}", "banded", "error") from err
 

@@ -89,6 +89,8 @@ class MStep(abc.ABC):
         Use answers the backend flags as inaccurate instead of raising ``SolverError``.
     constraints
         Every constraint of the run; :attr:`MStepData.active` says which are imposed in a solve.
+    threads
+        Threads a solve may use (the exact smoother splits its batch of platforms over them).
     """
 
     #: Registry name.
@@ -100,6 +102,7 @@ class MStep(abc.ABC):
         settings: dict[str, object] | None = None,
         accept_inaccurate: bool = False,
         constraints: tuple[Constraint, ...] = (),
+        threads: int = 1,
     ) -> None:
         self.scenario = scenario
         self.constraints = tuple(constraints)
@@ -109,6 +112,7 @@ class MStep(abc.ABC):
         self.T = scenario.horizon
         self.M = scenario.n_platforms
         self.x0 = scenario.initial_states
+        self.threads = max(1, int(threads))
         self._reference: BandedMStep | None = None
         self._setup()
 
@@ -138,7 +142,7 @@ class MStep(abc.ABC):
         if getattr(self, "_reference", None) is None:
             from pmht_opt.mstep.banded import BandedMStep
 
-            self._reference = BandedMStep(self.scenario)
+            self._reference = BandedMStep(self.scenario, threads=self.threads)
         assert self._reference is not None
         return self._reference
 

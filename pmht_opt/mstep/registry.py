@@ -128,11 +128,11 @@ def make_mstep(
     if key == "banded":
         from pmht_opt.mstep.banded import BandedMStep
 
-        return BandedMStep(scenario, accept_inaccurate=accept_inaccurate)
+        return BandedMStep(scenario, accept_inaccurate=accept_inaccurate, threads=threads)
     if key == "kalman":
         from pmht_opt.mstep.kalman import KalmanMStep
 
-        return KalmanMStep(scenario, accept_inaccurate=accept_inaccurate)
+        return KalmanMStep(scenario, accept_inaccurate=accept_inaccurate, threads=threads)
     if any("cvxpy" in con.needs for con in constraints):
         from pmht_opt.mstep.cvxpy_ import JointCvxpyMStep
 
