@@ -12,7 +12,9 @@ platform, so that the gate runs on small arrays whatever the size of the problem
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Iterator
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -49,16 +51,17 @@ class SupportCandidates:
         self.ft = np.isfinite(lt) if lt is not None else np.ones((N, T), dtype=bool)
         self.fk = np.isfinite(lk) if lk is not None else np.ones((N, M), dtype=bool)
 
-    def blocks(self) -> Iterator[Block]:
-        """Blocks of candidates (:data:`Block`), without distances."""
+    def spans(self) -> list[tuple[int, int]]:
+        """The blocks' locales ``[lo, hi)``, in order."""
         N, T = self.ft.shape
-        M = self.fk.shape[1]
-        step = max(1, _BLOCK // (T * M))
-        for lo in range(0, N, step):
-            hi = min(lo + step, N)
-            mask = self.fk[lo:hi, :, None] & self.ft[lo:hi, None, :]
-            n, m, t = np.nonzero(mask)
-            yield lo, hi, n + lo, t, m, None
+        step = max(1, _BLOCK // (T * self.fk.shape[1]))
+        return [(lo, min(lo + step, N)) for lo in range(0, N, step)]
+
+    def block(self, lo: int, hi: int) -> Block:
+        """The candidates (:data:`Block`) of the locales ``lo .. hi - 1``, without distances."""
+        mask = self.fk[lo:hi, :, None] & self.ft[lo:hi, None, :]
+        n, m, t = np.nonzero(mask)
+        return lo, hi, n + lo, t, m, None
 
 
 class TreeCandidates:
@@ -133,23 +136,25 @@ class TreeCandidates:
         if scale is None:
             scale = max(float(np.max(np.abs(z))), float(np.max(np.abs(positions))))
         self.slack = 16.0 * np.finfo(float).eps * scale
-        self._found: list[Block] | None = None
+        self._found: dict[tuple[int, int], Block] | None = None
+        self._search_plan: _SearchPlan | None = None
+        self._lock = threading.Lock()
 
     def estimate(self, limit: float = math.inf) -> float:
         """Expected number of candidates; inf if the bound cannot place every locale.
 
         Up to ``2 * _GATE_SAMPLE`` locales the search itself runs and its count is exact (its blocks
-        are kept for :meth:`blocks`), or it stops past ``limit`` and returns its count so far (then
+        are kept for :meth:`block`), or it stops past ``limit`` and returns its count so far (then
         above ``limit``); beyond, the radius counts of a sample of locales are scaled up.
         """
         if not self.ok:
             return math.inf
         N = self.z.shape[0]
         if N <= 2 * _GATE_SAMPLE:
-            found: list[Block] = []
+            found: dict[tuple[int, int], Block] = {}
             exact = 0
             for block in self._search():
-                found.append(block)
+                found[block[0], block[1]] = block
                 exact += block[2].size
                 if exact > limit:
                     return float(exact)
@@ -164,12 +169,17 @@ class TreeCandidates:
                 count += float(np.sum(lengths))
         return count * N / sample.size
 
-    def blocks(self) -> Iterator[Block]:
-        """Blocks of candidates (:data:`Block`) with their squared distances: those of
-        :meth:`estimate`'s search if it ran, handed over once (the E-step turns the distances into
-        log weights in place), else a new search."""
-        found, self._found = self._found, None
-        return iter(found) if found is not None else self._search()
+    def spans(self) -> list[tuple[int, int]]:
+        """The blocks' locales ``[lo, hi)``, in order."""
+        return self._plan().spans
+
+    def block(self, lo: int, hi: int) -> Block:
+        """The candidates (:data:`Block`) of the span ``lo .. hi - 1`` with their squared distances:
+        the block of :meth:`estimate`'s search if it ran, handed over once (the E-step turns the
+        distances into log weights in place), else searched now. Safe to call from several threads."""
+        with self._lock:
+            found = None if self._found is None else self._found.pop((lo, hi), None)
+        return found if found is not None else self._search_block(self._plan(), lo, hi)
 
     def _chunks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The path points in the trees' order, in chunks ``(M, K, C, 2)`` (padded with infinite
@@ -198,12 +208,24 @@ class TreeCandidates:
 
     def _search(self) -> Iterator[Block]:
         """The chunked search (class docstring), a block of locales at a time."""
+        plan = self._plan()
+        for lo, hi in plan.spans:
+            yield self._search_block(plan, lo, hi)
+
+    def _plan(self) -> _SearchPlan:
+        """What every block of the search reads (computed once): the chunks, the pairs, which chunks
+        each pair's disc meets, and the blocks of whole locales, about :data:`_BLOCK` points each."""
+        with self._lock:
+            if self._search_plan is None:
+                self._search_plan = self._make_plan()
+            return self._search_plan
+
+    def _make_plan(self) -> _SearchPlan:
         z = self.z
         N = z.shape[0]
         points, times, centre, half = self._chunks()
         K = centre.shape[1]
         pair_n, pair_m = np.nonzero(self.query)  # sorted by (locale, platform)
-        rho2 = self.rho2[pair_n, pair_m]
         radius = self.radius[pair_n, pair_m]
         # Chunks whose bounding disc meets the pair's disc (with room for rounding), a slab of pairs
         # at a time.
@@ -216,24 +238,52 @@ class TreeCandidates:
             dy = z[pair_n[p0:p1], 1, None] - centre[m, :, 1]
             reach = (radius[p0:p1, None] + half[m]) * (1.0 + 1e-9) + self.slack
             hits[p0:p1] = dx * dx + dy * dy <= reach * reach
-        # Blocks of whole locales, about _BLOCK points each.
         cumulative = np.cumsum(np.bincount(pair_n, weights=hits.sum(axis=1), minlength=N) * _CHUNK)
-        pair_start = np.searchsorted(pair_n, np.arange(N + 1))
+        spans = []
         lo = 0
         while lo < N:
             before = cumulative[lo - 1] if lo else 0.0
             hi = int(np.searchsorted(cumulative, before + _BLOCK, side="right"))
             hi = min(max(hi, lo + 1), N)
-            p0, p1 = int(pair_start[lo]), int(pair_start[hi])
-            ph, kh = np.nonzero(hits[p0:p1])
-            ph += p0
-            n, m = pair_n[ph], pair_m[ph]
-            pts = points[m, kh]  # (hits, C, 2)
-            d2 = squared_distance(z[n, 0, None], z[n, 1, None], pts[..., 0], pts[..., 1])
-            inside = d2 <= rho2[ph, None]
-            h, c = np.nonzero(inside)
-            yield lo, hi, n[h], times[m[h], kh[h] * _CHUNK + c], m[h], d2[inside]
+            spans.append((lo, hi))
             lo = hi
+        return _SearchPlan(
+            points,
+            times,
+            pair_n,
+            pair_m,
+            self.rho2[pair_n, pair_m],
+            hits,
+            np.searchsorted(pair_n, np.arange(N + 1)),
+            spans,
+        )
+
+    def _search_block(self, plan: _SearchPlan, lo: int, hi: int) -> Block:
+        """The candidates of the locales ``lo .. hi - 1``: the points of the chunks each pair's disc
+        meets, measured directly."""
+        z = self.z
+        p0, p1 = int(plan.pair_start[lo]), int(plan.pair_start[hi])
+        ph, kh = np.nonzero(plan.hits[p0:p1])
+        ph += p0
+        n, m = plan.pair_n[ph], plan.pair_m[ph]
+        pts = plan.points[m, kh]  # (hits, C, 2)
+        d2 = squared_distance(z[n, 0, None], z[n, 1, None], pts[..., 0], pts[..., 1])
+        inside = d2 <= plan.rho2[ph, None]
+        h, c = np.nonzero(inside)
+        return lo, hi, n[h], plan.times[m[h], kh[h] * _CHUNK + c], m[h], d2[inside]
+
+
+class _SearchPlan(NamedTuple):
+    """What every block of :class:`TreeCandidates`' search reads."""
+
+    points: np.ndarray
+    times: np.ndarray
+    pair_n: np.ndarray
+    pair_m: np.ndarray
+    rho2: np.ndarray
+    hits: np.ndarray
+    pair_start: np.ndarray
+    spans: list[tuple[int, int]]
 
 
 __all__ = ["Block", "SupportCandidates", "TreeCandidates"]

@@ -10,7 +10,6 @@ and iteration, so studies watch a run without re-implementing it.
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -28,6 +27,7 @@ from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.model import POS
 from pmht_opt.mstep.base import MStepData, MStepOutput
 from pmht_opt.mstep.registry import make_mstep, resolve
+from pmht_opt.parallel import usable_cores
 from pmht_opt.planner import PMHTConfig
 from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario
@@ -171,7 +171,9 @@ class EMRun:
         auto_off = cfg.estep_gate == "auto" and cfg.update_time_prior
         self.gate = None if auto_off else gate_margin(cfg.estep_gate, T, M)
         self._started = time.perf_counter()
-        threads = cfg.threads if cfg.threads is not None else min(M, os.cpu_count() or 1)
+        threads = cfg.threads if cfg.threads is not None else min(M, usable_cores())
+        #: Threads of the E-step's blocks of locales (any number gives the same weights, bit for bit).
+        self.estep_threads = cfg.threads if cfg.threads is not None else usable_cores()
         #: The backend that runs the M-steps (``"auto"`` resolved).
         self.solver = resolve(cfg.solver, cfg.constraints)
         self.mstep = make_mstep(
@@ -213,7 +215,15 @@ class EMRun:
         when the backend has it: recomputed from the states it would be a difference of nearly equal
         numbers, which loses every digit when ``q dt^5`` is tiny against the positions.
         """
-        es = estep(self.scenario.locales, states[:, 1:, POS], log_tau, log_k, r, gate=self.gate)
+        es = estep(
+            self.scenario.locales,
+            states[:, 1:, POS],
+            log_tau,
+            log_k,
+            r,
+            gate=self.gate,
+            threads=self.estep_threads,
+        )
         return es, self._log_prior(states, noise) + es.log_likelihood
 
     def _next_estep(
@@ -234,7 +244,12 @@ class EMRun:
         schedule = self.schedule
         if it < schedule.max_iter and schedule.r_at(it + 1) != r:
             objective = self._log_prior(states, noise) + log_likelihood(
-                self.scenario.locales, states[:, 1:, POS], *priors, r, gate=self.gate
+                self.scenario.locales,
+                states[:, 1:, POS],
+                *priors,
+                r,
+                gate=self.gate,
+                threads=self.estep_threads,
             )
             es, _ = self._estep(states, schedule.r_at(it + 1), None, *priors)
             return es, objective

@@ -217,6 +217,7 @@ def log_likelihood(
     log_platform_prior: np.ndarray | None,
     r: float,
     gate: float | str | None = None,
+    threads: int = 1,
 ) -> float:
     """``estep(...).log_likelihood`` (bit for bit, the same gate decision and arithmetic), without
     forming or keeping the weights: the data term of the EM objective where only it is wanted.
@@ -226,7 +227,7 @@ def log_likelihood(
 
     Parameters
     ----------
-    locales, positions, log_time_prior, log_platform_prior, r, gate
+    locales, positions, log_time_prior, log_platform_prior, r, gate, threads
         As for :func:`estep`.
 
     Returns
@@ -237,10 +238,10 @@ def log_likelihood(
     M, T, _ = positions.shape
     margin = gate_margin(gate, T, M)
     inputs = EStepInputs(locales, positions, log_time_prior, log_platform_prior, r)
-    lse = gated_log_normalisers(inputs, margin) if margin is not None else None
+    lse = gated_log_normalisers(inputs, margin, threads) if margin is not None else None
     if lse is None:
         lse = np.empty(locales.shape[0])
-        for i, j, block_lse in inputs.dense_blocks(None):
+        for i, j, block_lse in inputs.dense_blocks(None, threads):
             lse[i:j] = block_lse
     return float(np.sum(lse))
 
@@ -289,6 +290,7 @@ def estep(
     log_platform_prior: np.ndarray | None,
     r: float,
     gate: float | str | None = None,
+    threads: int = 1,
 ) -> EStepResult:
     """Compute the weights ``w[n, t, m]`` (eq. 9) for paths ``positions``.
 
@@ -310,6 +312,10 @@ def estep(
         their (locale, platform) pair (module docstring); the dense computation still runs when the
         gate would keep more than :data:`GATE_MAX_FRACTION` of the triples or the paths are not
         finite.
+    threads
+        Blocks of locales computed concurrently on up to this many threads. The blocks, their
+        arithmetic and the order of every sum over them do not depend on it: the result is the same
+        to the last bit.
     """
     z = locales
     M, T, _ = positions.shape
@@ -317,7 +323,7 @@ def estep(
     margin = gate_margin(gate, T, M)
     inputs = EStepInputs(z, positions, log_time_prior, log_platform_prior, r)
     if margin is not None:
-        gated = estep_gated(inputs, margin)
+        gated = estep_gated(inputs, margin, threads)
         if gated is not None:
             return EStepResult(
                 weights=gated.weights,
@@ -335,7 +341,7 @@ def estep(
     lse = np.empty(N)
     W = np.zeros(TM)
     WZ = np.zeros((2, TM))
-    for i, j, block_lse in inputs.dense_blocks(w):
+    for i, j, block_lse in inputs.dense_blocks(w, threads):
         block = w[i:j]
         lse[i:j] = block_lse
         W += block.sum(axis=0)

@@ -25,7 +25,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from pmht_opt.candidates import SupportCandidates, TreeCandidates
+from pmht_opt.candidates import Block, SupportCandidates, TreeCandidates
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.likelihood import (
     _SAFE_SCALE,
@@ -35,6 +35,7 @@ from pmht_opt.likelihood import (
     log_weights_from_d2,
     squared_distance,
 )
+from pmht_opt.parallel import ordered_map
 
 #: ``gate="auto"``: the margin is ``log(T M) + GATE_AUTO_NATS``, so the mass dropped from a (locale,
 #: platform) pair is below ``exp(-GATE_AUTO_NATS)`` (8.5e-17) of it, under half the float64 epsilon.
@@ -81,7 +82,7 @@ class GatedWeights(NamedTuple):
     largest: np.ndarray
 
 
-def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
+def estep_gated(inputs: EStepInputs, margin: float, threads: int = 1) -> GatedWeights | None:
     """The gated E-step (module docstring), or ``None`` where the dense one should run instead.
 
     The candidates come a block of locales at a time, sorted by locale and platform, so every
@@ -91,18 +92,18 @@ def estep_gated(inputs: EStepInputs, margin: float) -> GatedWeights | None:
     the number of triples.
     """
     out = _Accumulator(*_sizes(inputs))
-    for block in _gated_blocks(inputs, margin):
+    for block in _gated_blocks(inputs, margin, threads):
         if block is None:
             return None
         out.add(inputs.locales, *block)
     return out.result(inputs)
 
 
-def gated_log_normalisers(inputs: EStepInputs, margin: float) -> np.ndarray | None:
+def gated_log_normalisers(inputs: EStepInputs, margin: float, threads: int = 1) -> np.ndarray | None:
     """The log-normalisers of :func:`estep_gated` alone (bit for bit), without keeping its weights;
     ``None`` where it would give way to the dense E-step."""
     lse = np.empty(inputs.locales.shape[0])
-    for block in _gated_blocks(inputs, margin):
+    for block in _gated_blocks(inputs, margin, threads):
         if block is None:
             return None
         lo, hi = block[0], block[1]
@@ -119,46 +120,58 @@ def _sizes(inputs: EStepInputs) -> tuple[int, int, int]:
 _Block = tuple[int, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
-def _gated_blocks(inputs: EStepInputs, margin: float) -> Iterator[_Block | None]:
+def _gated_blocks(inputs: EStepInputs, margin: float, threads: int = 1) -> Iterator[_Block | None]:
     """The gated E-step a block of locales at a time: ``(lo, hi, local rows, times, platforms,
     normalised weights, log-normalisers of rows lo .. hi - 1)`` for the kept triples, in order; a
-    ``None`` (and nothing after it) where the dense E-step should run instead."""
+    ``None`` (and nothing after it) where the dense E-step should run instead. With ``threads > 1``
+    the blocks are worked on concurrently and taken in order (:func:`pmht_opt.parallel.ordered_map`):
+    the same blocks, arithmetic and decisions."""
     source = _choose_source(inputs, margin)
     if source is None:
         yield None
         return
-    z, positions, r = inputs.locales, inputs.positions, inputs.r
-    log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
     N, T, M = _sizes(inputs)
     budget = GATE_MAX_FRACTION * N * T * M
-    const = log_const(r, T, M, log_tau is None, log_k is None)
+    const = log_const(inputs.r, T, M, inputs.log_time_prior is None, inputs.log_platform_prior is None)
     total = 0
-    for lo, hi, row, t, plat, d2 in source.blocks():
-        total += row.size
-        if total > budget:
+    for count, block in ordered_map(
+        lambda lo, hi: _gate(inputs, source.block(lo, hi), const, margin), source.spans(), threads
+    ):
+        total += count
+        if total > budget or block is None:
             yield None
             return
-        if d2 is None:
-            d2 = _squared_distances(z, positions, row, t, plat)
-        # The candidates' log weights, with the dense E-step's arithmetic (bit for bit the same).
-        a = log_weights_from_d2(d2, r, const)
-        if log_tau is not None:
-            a += log_tau[row, t]
-        if log_k is not None:
-            a += log_k[row, plat]
-        kept = _gate_block(a, row, plat, lo, hi, M, margin)
-        if kept is None:
-            yield None
-            return
-        keep, best = kept
-        if keep is not None:
-            row, t, plat, a = row[keep], t[keep], plat[keep], a[keep]
-        local = row - lo
-        a -= best[local]
-        np.exp(a, out=a)
-        s = np.bincount(local, weights=a, minlength=hi - lo)
-        a *= (1.0 / s)[local]
-        yield lo, hi, local, t, plat, a, best + np.log(s)
+        yield block
+
+
+def _gate(inputs: EStepInputs, candidates: Block, const: float, margin: float) -> tuple[int, _Block | None]:
+    """One block's candidates gated and normalised: ``(number of candidates, the block)``, the block
+    ``None`` if some locale of it has no finite candidate."""
+    z, positions, r = inputs.locales, inputs.positions, inputs.r
+    log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
+    M = positions.shape[0]
+    lo, hi, row, t, plat, d2 = candidates
+    count = row.size
+    if d2 is None:
+        d2 = _squared_distances(z, positions, row, t, plat)
+    # The candidates' log weights, with the dense E-step's arithmetic (bit for bit the same).
+    a = log_weights_from_d2(d2, r, const)
+    if log_tau is not None:
+        a += log_tau[row, t]
+    if log_k is not None:
+        a += log_k[row, plat]
+    kept = _gate_block(a, row, plat, lo, hi, M, margin)
+    if kept is None:
+        return count, None
+    keep, best = kept
+    if keep is not None:
+        row, t, plat, a = row[keep], t[keep], plat[keep], a[keep]
+    local = row - lo
+    a -= best[local]
+    np.exp(a, out=a)
+    s = np.bincount(local, weights=a, minlength=hi - lo)
+    a *= (1.0 / s)[local]
+    return count, (lo, hi, local, t, plat, a, best + np.log(s))
 
 
 def _squared_distances(

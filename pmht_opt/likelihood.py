@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pmht_opt.exceptions import PmhtOptError
+from pmht_opt.parallel import ordered_map, scratch
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 #: Above this coordinate magnitude the squared differences could overflow (the dense E-step then uses
@@ -99,12 +100,13 @@ class EStepInputs:
             self.r,
         )
 
-    def dense_blocks(self, out: np.ndarray | None) -> Iterator[tuple[int, int, np.ndarray]]:
+    def dense_blocks(self, out: np.ndarray | None, threads: int = 1) -> Iterator[tuple[int, int, np.ndarray]]:
         """Fill ``out (N, T*M)`` with the normalised weights of the locales ``(N, 2)`` against the paths
         ``(M, T, 2)``, a block of rows at a time; yields ``(i, j, log-normalisers of rows i..j)`` after
-        each block, so a caller can accumulate sums while the block is in cache. With ``out=None``
-        each block's weights go to one scratch block, overwritten by the next: for a caller that
-        wants the log-normalisers only."""
+        each block, in order, so a caller can accumulate sums while the block is in cache. With
+        ``out=None`` each block's weights go to a scratch block, overwritten later: for a caller that
+        wants the log-normalisers only. With ``threads > 1`` the blocks are computed on threads
+        (:func:`pmht_opt.parallel.ordered_map`), the same blocks with the same arithmetic."""
         M, T, _ = self.positions.shape
         N = self.locales.shape[0]
         TM = T * M
@@ -112,14 +114,21 @@ class EStepInputs:
         const = log_const(self.r, T, M, self.log_time_prior is None, self.log_platform_prior is None)
         # Blocks of rows small enough to stay in cache through every pass.
         step = max(1, _BLOCK // TM)
+        spans = [(i, min(i + step, N)) for i in range(0, N, step)]
+        if threads > 1 and len(spans) > 1:
+
+            def block(i: int, j: int) -> tuple[int, int, np.ndarray]:
+                rows = scratch("dense_rows", j - i, TM) if out is None else out[i:j]
+                tmp = scratch("dense_tmp", j - i, TM)
+                return i, j, _dense_rows(self.of_locales(i, j), p, const, rows, tmp)
+
+            yield from ordered_map(block, spans, threads)
+            return
         tmp = np.empty((min(step, N), TM))
-        scratch = out is None
         target = np.empty_like(tmp) if out is None else out
-        for i in range(0, N, step):
-            j = min(i + step, N)
-            rows = target[: j - i] if scratch else target[i:j]
-            lse = _dense_rows(self.of_locales(i, j), p, const, rows, tmp[: j - i])
-            yield i, j, lse
+        for i, j in spans:
+            rows = target[: j - i] if out is None else target[i:j]
+            yield i, j, _dense_rows(self.of_locales(i, j), p, const, rows, tmp[: j - i])
 
 
 def _dense_rows(

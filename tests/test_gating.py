@@ -232,7 +232,7 @@ def test_chunked_search_finds_what_radius_queries_find(seed: int, block: int, mo
     z, pos, _, _, _ = _case(seed, "uniform", 0.01)
     pos = pos[:, :135]  # 4 chunks and 7 points
     tree = candidates.TreeCandidates(EStepInputs(z, pos, None, None, 0.01), 60.0)
-    blocks = list(tree.blocks())
+    blocks = [tree.block(lo, hi) for lo, hi in tree.spans()]
     assert blocks[0][0] == 0 and blocks[-1][1] == z.shape[0]
     assert all(a[1] == b[0] for a, b in itertools.pairwise(blocks))
     assert (len(blocks) > 1) == (block == 64)

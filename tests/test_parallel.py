@@ -1,0 +1,105 @@
+"""Threads change no digit: the E-step's blocks and the exact smoother's batch on several threads."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+
+import pmht_opt as po
+from pmht_opt.estep import estep, log_likelihood, safe_log
+from pmht_opt.parallel import ordered_map
+
+
+def _case(seed: int, prior: str) -> tuple[np.ndarray, np.ndarray, Any, Any]:
+    """Random locales and random-walk paths, with uniform priors or non-uniform ones with zeros."""
+    rng = np.random.default_rng(seed)
+    N, M, T = 150, 3, 200
+    z = rng.uniform(0, 10, (N, 2))
+    pos = np.cumsum(rng.normal(0, 0.08, (M, T, 2)), axis=1) + rng.uniform(2, 8, (M, 1, 2))
+    lt = lk = None
+    if prior == "dirichlet":
+        lt = np.log(rng.dirichlet(np.full(T, 0.5), size=N))
+        k = rng.dirichlet(np.ones(M), size=N)
+        k[k < 0.15] = 0.0
+        lk = safe_log(k / k.sum(axis=1, keepdims=True))
+    return z, pos, lt, lk
+
+
+def _fields(es: po.EStepResult) -> dict[str, np.ndarray]:
+    weights = es.weights
+    dense = weights.toarray() if hasattr(weights, "toarray") else np.asarray(weights)
+    return {"weights": dense, "W": es.W, "WZ": es.WZ, "lse": es.log_normaliser}
+
+
+@pytest.mark.parametrize("prior", ["uniform", "dirichlet"])
+@pytest.mark.parametrize(("r", "gate"), [(1.0, None), (0.01, None), (0.01, "auto"), (0.05, "auto")])
+def test_estep_is_the_same_on_any_number_of_threads(
+    prior: str, r: float, gate: Any, monkeypatch: Any
+) -> None:
+    """Small blocks (many of them) on 1, 2 and 3 threads: every weight, sum and normaliser equal."""
+    from pmht_opt import candidates, likelihood
+
+    monkeypatch.setattr(likelihood, "_BLOCK", 2000)  # a few locales per dense block
+    monkeypatch.setattr(candidates, "_BLOCK", 3000)  # and per gated block
+    z, pos, lt, lk = _case(3, prior)
+    one = estep(z, pos, lt, lk, r, gate=gate, threads=1)
+    if gate is not None and r == 0.01:
+        assert not isinstance(one.weights, np.ndarray)  # the gated E-step ran
+    for threads in (2, 3):
+        got = estep(z, pos, lt, lk, r, gate=gate, threads=threads)
+        for name, value in _fields(one).items():
+            np.testing.assert_array_equal(_fields(got)[name], value, err_msg=name)
+        assert log_likelihood(z, pos, lt, lk, r, gate=gate, threads=threads) == one.log_likelihood
+
+
+def test_plans_are_the_same_on_any_number_of_threads(monkeypatch: Any) -> None:
+    """Whole annealed plans, dense and gated E-steps, with 1 and 2 threads: identical to the last bit."""
+    from pmht_opt import candidates, likelihood
+
+    monkeypatch.setattr(likelihood, "_BLOCK", 5000)
+    monkeypatch.setattr(candidates, "_BLOCK", 5000)
+    sc = po.paper_scenario("C", seed=2, horizon=150)
+    plans = [
+        po.plan_pmht(sc, po.PMHTConfig(max_iter=25, anneal=po.Anneal(1.0, 12), threads=t)) for t in (1, 2)
+    ]
+    np.testing.assert_array_equal(plans[0].positions, plans[1].positions)
+    np.testing.assert_array_equal(plans[0].history.objective, plans[1].history.objective)
+    np.testing.assert_array_equal(plans[0].assignment, plans[1].assignment)
+
+
+def test_ordered_map_keeps_order_and_raises_in_order() -> None:
+    def work(lo: int, hi: int) -> int:
+        time.sleep(0.002 * ((7 - lo) % 4))  # later spans often finish first
+        if lo == 5:
+            raise ValueError("span 5")
+        return lo * 10 + hi
+
+    spans = [(i, i + 1) for i in range(8)]
+    got = []
+    with pytest.raises(ValueError, match="span 5"):
+        for value in ordered_map(work, spans, threads=3):
+            got.append(value)
+    assert got == [i * 10 + i + 1 for i in range(5)]
+
+
+def test_ordered_map_closed_early_leaves_nothing_running() -> None:
+    running = threading.Event()
+    done: list[int] = []
+
+    def work(lo: int, hi: int) -> int:
+        running.set()
+        time.sleep(0.02)
+        done.append(lo)
+        return lo
+
+    gen = ordered_map(work, [(i, i + 1) for i in range(10)], threads=2)
+    assert next(gen) == 0
+    gen.close()
+    finished = len(done)
+    time.sleep(0.1)
+    assert len(done) == finished  # nothing ran on after the generator closed
+    assert finished < 10
