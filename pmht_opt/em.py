@@ -27,7 +27,7 @@ from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.model import POS
 from pmht_opt.mstep.base import MStepData, MStepOutput
 from pmht_opt.mstep.registry import make_mstep, resolve
-from pmht_opt.parallel import usable_cores
+from pmht_opt.parallel import concurrent, usable_cores
 from pmht_opt.planner import PMHTConfig
 from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario
@@ -243,16 +243,19 @@ class EMRun:
         """
         schedule = self.schedule
         if it < schedule.max_iter and schedule.r_at(it + 1) != r:
-            objective = self._log_prior(states, noise) + log_likelihood(
+            # Two independent computations on the same paths: the objective runs beside the E-step.
+            with concurrent(
+                self.estep_threads,
+                log_likelihood,
                 self.scenario.locales,
                 states[:, 1:, POS],
                 *priors,
                 r,
                 gate=self.gate,
                 threads=self.estep_threads,
-            )
-            es, _ = self._estep(states, schedule.r_at(it + 1), None, *priors)
-            return es, objective
+            ) as data_term:
+                es, _ = self._estep(states, schedule.r_at(it + 1), None, *priors)
+                return es, self._log_prior(states, noise) + data_term()
         return self._estep(states, r, noise, *priors)
 
     def _log_prior(self, states: np.ndarray, noise: np.ndarray | None) -> float:

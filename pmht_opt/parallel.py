@@ -14,13 +14,14 @@ import threading
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor, wait
-from typing import TypeVar
+from contextlib import contextmanager
+from typing import Any, TypeVar
 
 import numpy as np
 
 from solvers.band_lu import usable_cores
 
-__all__ = ["ordered_map", "scratch", "usable_cores"]
+__all__ = ["concurrent", "ordered_map", "scratch", "usable_cores"]
 
 R = TypeVar("R")
 
@@ -70,6 +71,22 @@ def ordered_map(fn: Callable[[int, int], R], spans: Sequence[tuple[int, int]], t
         for future in pending:
             future.cancel()
         wait(pending)
+
+
+@contextmanager
+def concurrent(workers: int, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Iterator[Callable[[], R]]:
+    """Run ``fn(*args, **kwargs)`` on the pool while the ``with`` body runs (inline, when the body asks
+    for it, with ``workers <= 1`` or inside the pool); the body gets a function that returns its
+    result. On leaving the block the work is waited for, so nothing runs on after it."""
+    if workers <= 1 or threading.current_thread().name.startswith(_PREFIX):
+        yield lambda: fn(*args, **kwargs)
+        return
+    future = _pool().submit(fn, *args, **kwargs)
+    try:
+        yield future.result
+    finally:
+        future.cancel()
+        wait([future])
 
 
 def scratch(name: str, rows: int, cols: int) -> np.ndarray:

@@ -103,3 +103,35 @@ def test_ordered_map_closed_early_leaves_nothing_running() -> None:
     time.sleep(0.1)
     assert len(done) == finished  # nothing ran on after the generator closed
     assert finished < 10
+
+
+def test_concurrent_gives_the_result_and_waits_on_leaving() -> None:
+    from pmht_opt.parallel import concurrent
+
+    done: list[int] = []
+
+    def slow(x: int, *, y: int) -> int:
+        time.sleep(0.05)
+        done.append(x)
+        return x + y
+
+    with concurrent(2, slow, 1, y=2) as result:
+        assert result() == 3
+    with pytest.raises(RuntimeError, match="body"), concurrent(2, slow, 5, y=0):
+        raise RuntimeError("body")
+    settled = list(done)  # the work of the failed body was cancelled or had finished
+    time.sleep(0.1)
+    assert done == settled and done[0] == 1
+    with concurrent(1, slow, 7, y=1) as result:  # inline: runs when asked
+        assert done == settled
+        assert result() == 8
+
+
+def test_concurrent_raises_the_work_s_error() -> None:
+    from pmht_opt.parallel import concurrent
+
+    def fail() -> int:
+        raise ValueError("work")
+
+    with pytest.raises(ValueError, match="work"), concurrent(2, fail) as result:
+        result()
