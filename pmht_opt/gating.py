@@ -19,8 +19,8 @@ caller runs the dense computation instead.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
-from typing import NamedTuple
+from collections.abc import Callable, Iterator
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 import scipy.sparse as sp
@@ -91,11 +91,11 @@ def estep_gated(inputs: EStepInputs, margin: float, threads: int = 1) -> GatedWe
     of a block's size; only the weights and their columns, which the CSR matrix keeps, grow with
     the number of triples.
     """
-    out = _Accumulator(*_sizes(inputs))
-    for block in _gated_blocks(inputs, margin, threads):
+    out = _Accumulator(inputs.locales, *_sizes(inputs))
+    for block in _gated_blocks(inputs, margin, threads, out.prepare):
         if block is None:
             return None
-        out.add(inputs.locales, *block)
+        out.add(block)
     return out.result(inputs)
 
 
@@ -103,11 +103,10 @@ def gated_log_normalisers(inputs: EStepInputs, margin: float, threads: int = 1) 
     """The log-normalisers of :func:`estep_gated` alone (bit for bit), without keeping its weights;
     ``None`` where it would give way to the dense E-step."""
     lse = np.empty(inputs.locales.shape[0])
-    for block in _gated_blocks(inputs, margin, threads):
+    for block in _gated_blocks(inputs, margin, threads, lambda b: (b[0], b[1], b[-1])):
         if block is None:
             return None
-        lo, hi = block[0], block[1]
-        lse[lo:hi] = block[-1]
+        lo, hi, lse[lo:hi] = block
     return lse
 
 
@@ -118,14 +117,17 @@ def _sizes(inputs: EStepInputs) -> tuple[int, int, int]:
 
 
 _Block = tuple[int, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+B = TypeVar("B")
 
 
-def _gated_blocks(inputs: EStepInputs, margin: float, threads: int = 1) -> Iterator[_Block | None]:
-    """The gated E-step a block of locales at a time: ``(lo, hi, local rows, times, platforms,
-    normalised weights, log-normalisers of rows lo .. hi - 1)`` for the kept triples, in order; a
-    ``None`` (and nothing after it) where the dense E-step should run instead. With ``threads > 1``
-    the blocks are worked on concurrently and taken in order (:func:`pmht_opt.parallel.ordered_map`):
-    the same blocks, arithmetic and decisions."""
+def _gated_blocks(
+    inputs: EStepInputs, margin: float, threads: int, finish: Callable[[_Block], B]
+) -> Iterator[B | None]:
+    """The gated E-step a block of locales at a time: ``finish`` of ``(lo, hi, local rows, times,
+    platforms, normalised weights, log-normalisers of rows lo .. hi - 1)`` for the kept triples, in
+    order; a ``None`` (and nothing after it) where the dense E-step should run instead. With
+    ``threads > 1`` the blocks, ``finish`` included, are worked on concurrently and taken in order
+    (:func:`pmht_opt.parallel.ordered_map`): the same blocks, arithmetic and decisions."""
     source = _choose_source(inputs, margin)
     if source is None:
         yield None
@@ -133,15 +135,18 @@ def _gated_blocks(inputs: EStepInputs, margin: float, threads: int = 1) -> Itera
     N, T, M = _sizes(inputs)
     budget = GATE_MAX_FRACTION * N * T * M
     const = log_const(inputs.r, T, M, inputs.log_time_prior is None, inputs.log_platform_prior is None)
+
+    def work(lo: int, hi: int) -> tuple[int, B | None]:
+        count, block = _gate(inputs, source.block(lo, hi), const, margin)
+        return count, None if block is None else finish(block)
+
     total = 0
-    for count, block in ordered_map(
-        lambda lo, hi: _gate(inputs, source.block(lo, hi), const, margin), source.spans(), threads
-    ):
+    for count, done in ordered_map(work, source.spans(), threads):
         total += count
-        if total > budget or block is None:
+        if total > budget or done is None:
             yield None
             return
-        yield block
+        yield done
 
 
 def _gate(inputs: EStepInputs, candidates: Block, const: float, margin: float) -> tuple[int, _Block | None]:
@@ -216,6 +221,21 @@ def _gate_block(
     return (None if np.all(keep) else keep), best
 
 
+class _Prepared(NamedTuple):
+    """One gated block made ready for :meth:`_Accumulator.add` (:meth:`_Accumulator.prepare`)."""
+
+    lo: int
+    hi: int
+    col: np.ndarray
+    w: np.ndarray
+    wz: tuple[np.ndarray, np.ndarray]
+    lse: np.ndarray
+    platform: np.ndarray
+    counts: np.ndarray
+    largest: np.ndarray
+    best_column: np.ndarray
+
+
 class _Accumulator:
     """The gated E-step's outputs, filled a block of locales at a time (blocks in order).
 
@@ -225,8 +245,8 @@ class _Accumulator:
     triples is allocated but the weights and their columns, which the CSR matrix keeps.
     """
 
-    def __init__(self, N: int, T: int, M: int) -> None:
-        self.N, self.T, self.M = N, T, M
+    def __init__(self, z: np.ndarray, N: int, T: int, M: int) -> None:
+        self.z, self.N, self.T, self.M = z, N, T, M
         TM = T * M
         self.W = np.zeros(TM)
         self.WZ = np.zeros((2, TM))
@@ -241,31 +261,34 @@ class _Accumulator:
         self.cols: list[np.ndarray] = []
         self.values: list[np.ndarray] = []
 
-    def add(
-        self,
-        z: np.ndarray,
-        lo: int,
-        hi: int,
-        local: np.ndarray,
-        t: np.ndarray,
-        plat: np.ndarray,
-        w: np.ndarray,
-        lse: np.ndarray,
-    ) -> None:
-        """The normalised weights ``w`` of locales ``lo .. hi - 1`` (rows ``lo + local``, sorted) at
-        times ``t`` and platforms ``plat``, with the rows' log-normalisers."""
+    def prepare(self, block: _Block) -> _Prepared:
+        """Everything of one block that does not depend on the blocks before it (safe on any thread):
+        the gated weights ``w`` of locales ``lo .. hi - 1`` (rows ``lo + local``, sorted) at times
+        ``t`` and platforms ``plat``, as columns, their products with the locales, the rows' platform
+        totals, entry counts and largest weights."""
+        lo, hi, local, t, plat, w, lse = block
         M, n = self.M, hi - lo
         col = (t * M + plat).astype(self.column_dtype)
-        np.add.at(self.W, col, w)
-        np.add.at(self.WZ[0], col, w * z[lo + local, 0])
-        np.add.at(self.WZ[1], col, w * z[lo + local, 1])
-        self.lse[lo:hi] = lse
-        self.platform[lo:hi] = np.bincount(local * M + plat, weights=w, minlength=n * M).reshape(n, M)
+        rows = lo + local
+        wz = (w * self.z[rows, 0], w * self.z[rows, 1])
+        platform = np.bincount(local * M + plat, weights=w, minlength=n * M).reshape(n, M)
         counts = np.bincount(local, minlength=n)
         starts = np.zeros(n, dtype=np.intp)
         np.cumsum(counts[:-1], out=starts[1:])
-        self.largest[lo:hi], self.best_column[lo:hi] = row_maxima(w, col, local, starts, self.T * M)
-        self.indptr[lo + 1 : hi + 1] = counts
+        largest, best_column = row_maxima(w, col, local, starts, self.T * M)
+        return _Prepared(lo, hi, col, w, wz, lse, platform, counts, largest, best_column)
+
+    def add(self, block: _Prepared) -> None:
+        """A prepared block, in order: the sums over all triples are formed here, by ``np.add.at`` in
+        the order of the triples."""
+        lo, hi, col, w = block.lo, block.hi, block.col, block.w
+        np.add.at(self.W, col, w)
+        np.add.at(self.WZ[0], col, block.wz[0])
+        np.add.at(self.WZ[1], col, block.wz[1])
+        self.lse[lo:hi] = block.lse
+        self.platform[lo:hi] = block.platform
+        self.largest[lo:hi], self.best_column[lo:hi] = block.largest, block.best_column
+        self.indptr[lo + 1 : hi + 1] = block.counts
         self.cols.append(col)
         self.values.append(w)
 
