@@ -241,7 +241,7 @@ def log_likelihood(
     lse = gated_log_normalisers(inputs, margin, threads) if margin is not None else None
     if lse is None:
         lse = np.empty(locales.shape[0])
-        for i, j, block_lse in inputs.dense_blocks(None, threads):
+        for i, j, block_lse, _ in inputs.dense_blocks(None, threads):
             lse[i:j] = block_lse
     return float(np.sum(lse))
 
@@ -341,11 +341,15 @@ def estep(
     lse = np.empty(N)
     W = np.zeros(TM)
     WZ = np.zeros((2, TM))
-    for i, j, block_lse in inputs.dense_blocks(w, threads):
-        block = w[i:j]
+
+    def sums(i: int, j: int, block: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A block's sums, formed with the block (on its thread), then added in block order."""
+        return block.sum(axis=0), z[i:j].T @ block
+
+    for i, j, block_lse, (block_W, block_WZ) in inputs.dense_blocks(w, threads, sums):
         lse[i:j] = block_lse
-        W += block.sum(axis=0)
-        WZ += z[i:j].T @ block
+        W += block_W
+        WZ += block_WZ
     return EStepResult(
         weights=w, W=W.reshape(T, M), WZ=WZ.T.reshape(T, M, 2), log_normaliser=lse, n_platforms=M
     )

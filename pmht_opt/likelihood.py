@@ -11,8 +11,9 @@ alike).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -100,13 +101,19 @@ class EStepInputs:
             self.r,
         )
 
-    def dense_blocks(self, out: np.ndarray | None, threads: int = 1) -> Iterator[tuple[int, int, np.ndarray]]:
+    def dense_blocks(
+        self,
+        out: np.ndarray | None,
+        threads: int = 1,
+        finish: Callable[[int, int, np.ndarray], Any] | None = None,
+    ) -> Iterator[tuple[int, int, np.ndarray, Any]]:
         """Fill ``out (N, T*M)`` with the normalised weights of the locales ``(N, 2)`` against the paths
-        ``(M, T, 2)``, a block of rows at a time; yields ``(i, j, log-normalisers of rows i..j)`` after
-        each block, in order, so a caller can accumulate sums while the block is in cache. With
-        ``out=None`` each block's weights go to a scratch block, overwritten later: for a caller that
-        wants the log-normalisers only. With ``threads > 1`` the blocks are computed on threads
-        (:func:`pmht_opt.parallel.ordered_map`), the same blocks with the same arithmetic."""
+        ``(M, T, 2)``, a block of rows at a time; yields ``(i, j, log-normalisers of rows i..j,
+        finish(i, j, rows))`` after each block, in order, ``finish`` (default none) computing what the
+        caller wants of the block while it is in cache. With ``out=None`` each block's weights go to a
+        scratch block, overwritten later: for a caller that wants the log-normalisers only. With
+        ``threads > 1`` the blocks, ``finish`` included, are computed on threads
+        (:func:`pmht_opt.parallel.ordered_map`): the same blocks with the same arithmetic."""
         M, T, _ = self.positions.shape
         N = self.locales.shape[0]
         TM = T * M
@@ -117,10 +124,10 @@ class EStepInputs:
         spans = [(i, min(i + step, N)) for i in range(0, N, step)]
         if threads > 1 and len(spans) > 1:
 
-            def block(i: int, j: int) -> tuple[int, int, np.ndarray]:
+            def block(i: int, j: int) -> tuple[int, int, np.ndarray, Any]:
                 rows = scratch("dense_rows", j - i, TM) if out is None else out[i:j]
-                tmp = scratch("dense_tmp", j - i, TM)
-                return i, j, _dense_rows(self.of_locales(i, j), p, const, rows, tmp)
+                lse = _dense_rows(self.of_locales(i, j), p, const, rows, scratch("dense_tmp", j - i, TM))
+                return i, j, lse, None if finish is None else finish(i, j, rows)
 
             yield from ordered_map(block, spans, threads)
             return
@@ -128,7 +135,8 @@ class EStepInputs:
         target = np.empty_like(tmp) if out is None else out
         for i, j in spans:
             rows = target[: j - i] if out is None else target[i:j]
-            yield i, j, _dense_rows(self.of_locales(i, j), p, const, rows, tmp[: j - i])
+            lse = _dense_rows(self.of_locales(i, j), p, const, rows, tmp[: j - i])
+            yield i, j, lse, None if finish is None else finish(i, j, rows)
 
 
 def _dense_rows(
