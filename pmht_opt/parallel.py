@@ -10,6 +10,7 @@ caller's sums overlap with the next blocks' arithmetic.
 
 from __future__ import annotations
 
+import os
 import threading
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
@@ -29,6 +30,16 @@ _PREFIX = "pmht-blocks"
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
 _LOCAL = threading.local()
+
+
+def _forget_pool() -> None:
+    """In a child made by ``fork`` the parent's pool threads do not exist: make a new pool there."""
+    global _POOL
+    _POOL = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
 
 
 def _pool() -> ThreadPoolExecutor:

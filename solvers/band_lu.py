@@ -80,6 +80,16 @@ def usable_cores() -> int:
         return os.cpu_count() or 1
 
 
+def _forget_pool() -> None:
+    """In a child made by ``fork`` the parent's pool threads do not exist: make a new pool there."""
+    global _POOL
+    _POOL = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
 def _pool() -> ThreadPoolExecutor:
     global _POOL
     with _POOL_LOCK:

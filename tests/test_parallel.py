@@ -135,3 +135,22 @@ def test_concurrent_raises_the_work_s_error() -> None:
 
     with pytest.raises(ValueError, match="work"), concurrent(2, fail) as result:
         result()
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="needs fork")
+def test_a_forked_child_gets_pools_of_its_own() -> None:
+    """A child made by fork after the pools were used plans with threads instead of waiting forever
+    on the parent's pool threads, which do not exist in it."""
+    import multiprocessing as mp
+
+    sc = po.paper_scenario("A", seed=0, horizon=60)
+    cfg = po.PMHTConfig(max_iter=5, threads=2)
+    parent = po.plan_pmht(sc, cfg).positions  # the pools now exist in this process
+    ctx = mp.get_context("fork")
+    with ctx.Pool(1) as pool:
+        child = pool.apply_async(_plan_positions, (sc, cfg)).get(timeout=60)
+    np.testing.assert_array_equal(child, parent)
+
+
+def _plan_positions(sc: po.Scenario, cfg: po.PMHTConfig) -> np.ndarray:
+    return po.plan_pmht(sc, cfg).positions
