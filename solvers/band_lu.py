@@ -17,6 +17,7 @@ on the calling thread: the same arithmetic, one part.
 from __future__ import annotations
 
 import ctypes
+import itertools
 import os
 import re
 import threading
@@ -129,8 +130,19 @@ class BandLU:
             raise ValueError(f"band {band.shape} and right-hand sides {b.shape} do not fit k = {k}.")
         if not (band.flags.f_contiguous and b.flags.f_contiguous):
             raise ValueError("the band and the right-hand sides must be Fortran-ordered.")
+        if band.dtype != np.float64 or b.dtype != np.float64:
+            raise ValueError("the band and the right-hand sides must be float64.")
         self.band, self.k = band, k
         self.N = band.shape[1]
+        covered = (
+            len(parts) > 0
+            and parts[0][0] == 0
+            and parts[-1][1] == self.N
+            and all(lo < hi for lo, hi in parts)
+            and all(a[1] == b[0] for a, b in itertools.pairwise(parts))
+        )
+        if not covered:  # a wrong range would let LAPACK write outside the arrays
+            raise ValueError(f"parts {list(parts)} do not cover rows 0..{self.N} in order.")
         self.parts = list(parts) if _GBSV is not None and _GBTRS is not None else [(0, self.N)]
         if _GBSV is None or _GBTRS is None:
             lu, piv, x, info = lapack.dgbsv(k, k, band, b, overwrite_ab=1, overwrite_b=1)

@@ -516,11 +516,19 @@ def test_band_lu_without_exported_lapack(monkeypatch: pytest.MonkeyPatch) -> Non
     np.testing.assert_array_equal(got.means, expected.means)
 
 
-def test_band_lu_refuses_c_ordered_arrays() -> None:
+def test_band_lu_refuses_what_lapack_would_misread() -> None:
     from solvers.band_lu import BandLU
 
+    band, b = np.zeros((10, 20), order="F"), np.zeros((20, 2), order="F")
     with pytest.raises(ValueError, match="Fortran"):
-        BandLU(np.zeros((10, 20)), 3, np.zeros((20, 2)), [(0, 20)])
+        BandLU(np.zeros((10, 20)), 3, b, [(0, 20)])
+    with pytest.raises(ValueError, match="float64"):
+        BandLU(band.astype(np.float32), 3, b, [(0, 20)])
+    with pytest.raises(ValueError, match="fit"):
+        BandLU(band, 2, b, [(0, 20)])
+    for parts in ([(0, 10)], [(0, 10), (12, 20)], [(0, 25)], [(5, 20)], [(0, 0), (0, 20)], []):
+        with pytest.raises(ValueError, match="cover"):
+            BandLU(band.copy(order="F"), 3, b.copy(order="F"), parts)
 
 
 @pytest.mark.parametrize("threads", [0, -1, 1.5, True])
