@@ -19,6 +19,7 @@ import scipy.sparse as sp
 
 from pmht_opt.gating import GATE_MAX_FRACTION, estep_gated, gate_margin, gated_log_normalisers, row_maxima
 from pmht_opt.likelihood import EStepInputs
+from pmht_opt.parallel import thread_count
 
 #: Weights below this are left out of an :class:`EStepSummary` (each locale's weights sum to one).
 SUMMARY_FLOOR = 1e-12
@@ -237,6 +238,7 @@ def log_likelihood(
     """
     M, T, _ = positions.shape
     margin = gate_margin(gate, T, M)
+    threads = thread_count(threads)
     inputs = EStepInputs(locales, positions, log_time_prior, log_platform_prior, r)
     lse = gated_log_normalisers(inputs, margin, threads) if margin is not None else None
     if lse is None:
@@ -321,6 +323,7 @@ def estep(
     M, T, _ = positions.shape
     N = z.shape[0]
     margin = gate_margin(gate, T, M)
+    threads = thread_count(threads)
     inputs = EStepInputs(z, positions, log_time_prior, log_platform_prior, r)
     if margin is not None:
         gated = estep_gated(inputs, margin, threads)

@@ -20,9 +20,10 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from pmht_opt.exceptions import ConfigError
 from solvers.band_lu import usable_cores
 
-__all__ = ["concurrent", "ordered_map", "scratch", "usable_cores"]
+__all__ = ["concurrent", "ordered_map", "scratch", "thread_count", "usable_cores"]
 
 R = TypeVar("R")
 
@@ -30,6 +31,13 @@ _PREFIX = "pmht-blocks"
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
 _LOCAL = threading.local()
+
+
+def thread_count(threads: Any) -> int:
+    """``threads`` as a positive ``int``; :class:`~pmht_opt.exceptions.ConfigError` naming it otherwise."""
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+        raise ConfigError(f"threads: expected a positive integer, got {threads!r}.")
+    return int(threads)
 
 
 def _forget_pool() -> None:

@@ -24,6 +24,7 @@ from pmht_opt.constraints.base import Constraint
 from pmht_opt.estep import gate_margin
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.mstep.registry import check_backend, check_constraints
+from pmht_opt.parallel import thread_count
 from pmht_opt.stopping import MaxIterations, ObjectiveTolerance, StoppingCriterion
 
 #: ``callback(iteration, objective)``, called after every iteration.
@@ -161,11 +162,7 @@ class PMHTConfig:
 
 def _threads(threads: Any) -> int | None:
     """``threads`` as an ``int``, or ``None`` (one per core); :class:`ConfigError` unless positive."""
-    if threads is None:
-        return None
-    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
-        raise ConfigError(f"threads: expected a positive integer or None, got {threads!r}.")
-    return int(threads)
+    return None if threads is None else thread_count(threads)
 
 
 def _with_implied(constraints: Any) -> tuple[Constraint, ...]:

@@ -154,3 +154,12 @@ def test_a_forked_child_gets_pools_of_its_own() -> None:
 
 def _plan_positions(sc: po.Scenario, cfg: po.PMHTConfig) -> np.ndarray:
     return po.plan_pmht(sc, cfg).positions
+
+
+@pytest.mark.parametrize("threads", [0, -2, 1.5, True, "2", None])
+def test_bad_thread_counts_are_config_errors(threads: Any) -> None:
+    z, pos, _, _ = _case(0, "uniform")
+    with pytest.raises(po.ConfigError, match="threads"):
+        estep(z, pos, None, None, 0.1, threads=threads)
+    with pytest.raises(po.ConfigError, match="threads"):
+        log_likelihood(z, pos, None, None, 0.1, threads=threads)
