@@ -144,26 +144,11 @@ def _forward(
 ) -> None:
     """The forward pass into ``f`` from its moments at ``t = 0``: measurements ``yt (T, B, p, K)`` of
     covariance ``R * scale`` (``scale (T, B)``) where ``active (T, B)``."""
+    if H.shape[0] == 1:
+        _forward_scalar(f, F, Q, H[0], float(R[0, 0]) * scale, yt, active)
+        return
     m, P = f.mf[0], f.Pf[0]
     FT = F.T
-    if H.shape[0] == 1:
-        # Scalar measurements: no matrix inverse, and P - K (PH)' keeps P positive semidefinite.
-        h = H[0]
-        var = float(R[0, 0]) * scale
-        for t in range(1, f.mf.shape[0]):
-            m = F @ m
-            P = F @ P @ FT + Q
-            f.mp[t] = m
-            f.Pp[t] = P
-            PH = P @ h  # (B, n)
-            gain = PH / (PH @ h + var[t - 1])[:, None]
-            gain *= active[t - 1][:, None]
-            innov = yt[t - 1, :, 0, :] - h @ m  # (B, K)
-            m = m + gain[:, :, None] * innov[:, None, :]
-            P = P - gain[:, :, None] * PH[:, None, :]
-            f.mf[t] = m
-            f.Pf[t] = P
-        return
     eye = np.eye(F.shape[0])
     HT = H.T
     for t in range(1, f.mf.shape[0]):
@@ -183,6 +168,41 @@ def _forward(
         f.Pf[t] = P
 
 
+def _forward_scalar(
+    f: _Filtered,
+    F: np.ndarray,
+    Q: np.ndarray,
+    h: np.ndarray,
+    var: np.ndarray,
+    yt: np.ndarray,
+    active: np.ndarray,
+) -> None:
+    """The forward pass for scalar measurements ``h' x`` of variance ``var (T, B)`` where ``active``.
+
+    No matrix inverse, and ``P - g (P h)'`` keeps ``P`` positive semidefinite. Each step writes its
+    moments straight into ``f`` (a Python loop over time: the fewer array operations per step, the
+    faster), with a measurement's absence as an infinite variance (its gain is then exactly zero)
+    and, where ``h`` picks one component, that component read instead of a product with ``h``.
+    """
+    m, P = f.mf[0], f.Pf[0]
+    FT = F.T
+    var = np.where(active, var, np.inf)
+    picked = np.flatnonzero(h)
+    unit = int(picked[0]) if picked.size == 1 and h[picked[0]] == 1.0 else None
+    for t in range(1, f.mf.shape[0]):
+        m = np.matmul(F, m, out=f.mp[t])
+        P = np.matmul(F @ P, FT, out=f.Pp[t])
+        P += Q
+        PH = P[:, :, unit] if unit is not None else P @ h  # (B, n)
+        hPH = PH[:, unit] if unit is not None else PH @ h
+        gain = PH / (hPH + var[t - 1])[:, None]
+        innov = yt[t - 1, :, 0, :] - (m[:, unit, :] if unit is not None else h @ m)  # (B, K)
+        m_new = np.multiply(gain[:, :, None], innov[:, None, :], out=f.mf[t])
+        m_new += m
+        P_new = np.multiply(gain[:, :, None], PH[:, None, :], out=f.Pf[t])
+        m, P = m_new, np.subtract(P, P_new, out=P_new)
+
+
 def _smooth(f: _Filtered, F: np.ndarray) -> SmootherResult:
     """The backward pass over the filtered moments; the result in batch-major layout."""
     T = f.mf.shape[0] - 1
@@ -190,8 +210,11 @@ def _smooth(f: _Filtered, F: np.ndarray) -> SmootherResult:
     G = np.swapaxes(np.linalg.solve(f.Pp[1:], F @ f.Pf[:-1]), -1, -2)
     ms = np.empty_like(f.mf)
     ms[T] = f.mf[T]
+    step = np.empty_like(f.mf[0])
     for t in range(T - 1, -1, -1):
-        ms[t] = f.mf[t] + G[t] @ (ms[t + 1] - f.mp[t + 1])
+        np.subtract(ms[t + 1], f.mp[t + 1], out=step)
+        np.matmul(G[t], step, out=ms[t])
+        ms[t] += f.mf[t]
     return SmootherResult(
         means=np.moveaxis(ms, 0, 1),
         filtered_means=np.moveaxis(f.mf, 0, 1),
