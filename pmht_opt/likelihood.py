@@ -111,7 +111,8 @@ class EStepInputs:
         ``(M, T, 2)``, a block of rows at a time; yields ``(i, j, log-normalisers of rows i..j,
         finish(i, j, rows))`` after each block, in order, ``finish`` (default none) computing what the
         caller wants of the block while it is in cache. With ``out=None`` each block's weights go to a
-        scratch block, overwritten later: for a caller that wants the log-normalisers only. With
+        scratch block, overwritten later (``finish`` must then not return a view of it): for a caller
+        that wants the log-normalisers only. With
         ``threads > 1`` the blocks, ``finish`` included, are computed on threads
         (:func:`pmht_opt.parallel.ordered_map`): the same blocks with the same arithmetic."""
         M, T, _ = self.positions.shape

@@ -10,27 +10,28 @@ caller's sums overlap with the next blocks' arithmetic.
 
 from __future__ import annotations
 
-import os
 import threading
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor, wait
+from concurrent.futures import Future
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
 import numpy as np
 
 from pmht_opt.exceptions import ConfigError
-from solvers.band_lu import usable_cores
+from solvers.threads import LazyPool, usable_cores, wait_all
 
 __all__ = ["concurrent", "ordered_map", "scratch", "thread_count", "usable_cores"]
 
 R = TypeVar("R")
 
-_PREFIX = "pmht-blocks"
-_POOL: ThreadPoolExecutor | None = None
-_POOL_LOCK = threading.Lock()
+_POOL = LazyPool(max(2, usable_cores()), "pmht-blocks")
 _LOCAL = threading.local()
+
+
+class _StoppedError(Exception):
+    """Raised inside work that :func:`concurrent` no longer wants (its ``with`` body was left)."""
 
 
 def thread_count(threads: Any) -> int:
@@ -40,72 +41,63 @@ def thread_count(threads: Any) -> int:
     return int(threads)
 
 
-def _forget_pool() -> None:
-    """In a child made by ``fork`` the parent's pool threads do not exist: make a new pool there."""
-    global _POOL
-    _POOL = None
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_pool)
-
-
-def _pool() -> ThreadPoolExecutor:
-    global _POOL
-    with _POOL_LOCK:
-        if _POOL is None:
-            _POOL = ThreadPoolExecutor(max(2, usable_cores()), thread_name_prefix=_PREFIX)
-        return _POOL
-
-
 def ordered_map(fn: Callable[[int, int], R], spans: Sequence[tuple[int, int]], threads: int) -> Iterator[R]:
     """``fn(lo, hi)`` for every span, in order; with ``threads > 1`` up to ``threads`` spans are worked
     on ahead of the caller, on a shared pool of threads (inline when called from that pool).
 
     The generator waits for the work in flight when it is closed early or interrupted (a caller that
-    stops at a ``None``, or Ctrl-C), so nothing runs on after it; exceptions of ``fn`` are raised in
-    order, as a loop would raise them.
+    stops at a ``None``, or Ctrl-C, even twice), so nothing runs on after it; exceptions of ``fn`` are
+    raised in order, as a loop would raise them.
     """
-    # One span, or work of the pool's own threads, runs inline (waiting on the pool from inside it
-    # could deadlock).
-    if threads <= 1 or len(spans) <= 1 or threading.current_thread().name.startswith(_PREFIX):
+    if threads <= 1 or len(spans) <= 1 or _POOL.in_pool():
+        stop: threading.Event | None = getattr(_LOCAL, "stop", None)
         for lo, hi in spans:
+            if stop is not None and stop.is_set():
+                raise _StoppedError
             yield fn(lo, hi)
         return
     items = iter(spans)
-    pool = _pool()
     pending: deque[Future[R]] = deque()
     try:
         for lo, hi in items:
-            pending.append(pool.submit(fn, lo, hi))
+            pending.append(_POOL.get().submit(fn, lo, hi))
             if len(pending) >= threads:
                 break
         while pending:
-            result = pending.popleft().result()
+            result = pending[0].result()  # taken off only once done: an interrupt leaves it waited for
+            pending.popleft()
             following = next(items, None)
             if following is not None:
-                pending.append(pool.submit(fn, *following))
+                pending.append(_POOL.get().submit(fn, *following))
             yield result
     finally:
-        for future in pending:
-            future.cancel()
-        wait(pending)
+        wait_all(pending)
 
 
 @contextmanager
 def concurrent(workers: int, fn: Callable[..., R], /, *args: Any, **kwargs: Any) -> Iterator[Callable[[], R]]:
     """Run ``fn(*args, **kwargs)`` on the pool while the ``with`` body runs (inline, when the body asks
     for it, with ``workers <= 1`` or inside the pool); the body gets a function that returns its
-    result. On leaving the block the work is waited for, so nothing runs on after it."""
-    if workers <= 1 or threading.current_thread().name.startswith(_PREFIX):
+    result. On leaving the block the work is stopped at its next block of locales
+    (:func:`ordered_map` inside it checks) and waited for, so nothing runs on after it."""
+    if workers <= 1 or _POOL.in_pool():
         yield lambda: fn(*args, **kwargs)
         return
-    future = _pool().submit(fn, *args, **kwargs)
+    stop = threading.Event()
+
+    def run() -> R:
+        _LOCAL.stop = stop
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            _LOCAL.stop = None
+
+    future = _POOL.get().submit(run)
     try:
         yield future.result
     finally:
-        future.cancel()
-        wait([future])
+        stop.set()
+        wait_all([future])
 
 
 def scratch(name: str, rows: int, cols: int) -> np.ndarray:

@@ -6,29 +6,30 @@ same routines as C function pointers (:mod:`scipy.linalg.cython_lapack`); a call
 :mod:`ctypes` releases the lock for its duration, so the parts of a batch run on as many cores as
 there are threads.
 
-Factorising a block-diagonal band part by part gives the LU of the whole, bit for bit: partial
-pivoting in a column compares only rows of the column's own system (every other row holds an exact
-zero there), and the updates of one system's columns by another's rows multiply exact zeros. The
-split is therefore a matter of speed only, never of the answer. Where the function pointers cannot be
-had (a SciPy without them, or with other signatures), the whole band goes through the f2py wrappers
-on the calling thread: the same arithmetic, one part.
+The caller fixes the parts (whole independent systems); the threads only decide how many run at
+once, so the answer does not depend on their number. (For a narrow band, ``k <= 64``, LAPACK
+factorises column by column and the parts' LU is also the whole band's, bit for bit: pivoting in a
+column compares only rows of the column's own system, the others holding exact zeros. For a wider
+band LAPACK works in blocks of columns counted from the start of each call, so the parts matter.)
+Where the function pointers cannot be had (a SciPy without them, or with other signatures), each
+part goes through the f2py wrappers on the calling thread: the same calls, one at a time.
 """
 
 from __future__ import annotations
 
 import ctypes
 import itertools
-import os
 import re
-import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor, wait
+from concurrent.futures import Future
 from typing import Any
 
 import numpy as np
 from scipy.linalg import lapack
 
-__all__ = ["BandLU", "usable_cores"]
+from solvers.threads import LazyPool, usable_cores, wait_all
+
+__all__ = ["BandLU"]
 
 _INT = ctypes.POINTER(ctypes.c_int)
 _DBL = ctypes.POINTER(ctypes.c_double)
@@ -53,10 +54,14 @@ def _routine(name: str) -> Callable[..., None] | None:
         from scipy.linalg import cython_lapack
 
         capsule = cython_lapack.__pyx_capi__[name]
-        get_name = ctypes.pythonapi.PyCapsule_GetName
-        get_name.restype, get_name.argtypes = ctypes.c_char_p, [ctypes.py_object]
-        get_pointer = ctypes.pythonapi.PyCapsule_GetPointer
-        get_pointer.restype, get_pointer.argtypes = ctypes.c_void_p, [ctypes.py_object, ctypes.c_char_p]
+        # Function types of our own: setting argtypes on ctypes.pythonapi's would change them for
+        # every other user in the process.
+        get_name = ctypes.PYFUNCTYPE(ctypes.c_char_p, ctypes.py_object)(
+            ("PyCapsule_GetName", ctypes.pythonapi)
+        )
+        get_pointer = ctypes.PYFUNCTYPE(ctypes.c_void_p, ctypes.py_object, ctypes.c_char_p)(
+            ("PyCapsule_GetPointer", ctypes.pythonapi)
+        )
         signature = get_name(capsule)
         text, argtypes = _SIGNATURES[name]
         if re.sub(r"__pyx_t_\w+_d\b", "d", signature.decode()) != text:
@@ -69,34 +74,7 @@ def _routine(name: str) -> Callable[..., None] | None:
 
 _GBSV = _routine("dgbsv")
 _GBTRS = _routine("dgbtrs")
-_POOL: ThreadPoolExecutor | None = None
-_POOL_LOCK = threading.Lock()
-
-
-def usable_cores() -> int:
-    """The number of cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not on Linux
-        return os.cpu_count() or 1
-
-
-def _forget_pool() -> None:
-    """In a child made by ``fork`` the parent's pool threads do not exist: make a new pool there."""
-    global _POOL
-    _POOL = None
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_pool)
-
-
-def _pool() -> ThreadPoolExecutor:
-    global _POOL
-    with _POOL_LOCK:
-        if _POOL is None:
-            _POOL = ThreadPoolExecutor(max(1, usable_cores() - 1), thread_name_prefix="band-lu")
-        return _POOL
+_POOL = LazyPool(max(1, usable_cores() - 1), "band-lu")
 
 
 def _ref(value: int) -> Any:
@@ -109,31 +87,40 @@ class BandLU:
     Parameters
     ----------
     band
-        ``(3k + 1, N)`` Fortran-ordered LAPACK band storage (``A[i, j]`` at ``band[2k + i - j, j]``, the
-        top ``k`` rows free for fill-in), overwritten by the factors.
+        ``(3k + 1, N)`` Fortran-ordered float64 LAPACK band storage (``A[i, j]`` at
+        ``band[2k + i - j, j]``, the top ``k`` rows free for fill-in), overwritten by the factors.
     k
         Half-bandwidth (lower and upper).
     b
-        ``(N, K)`` Fortran-ordered right-hand sides, overwritten by the solution.
+        ``(N, K)`` Fortran-ordered float64 right-hand sides, overwritten by the solution.
     parts
         Row ranges ``[lo, hi)`` covering ``0..N`` in order, each a union of whole independent
-        systems; each is factorised on its own thread (the calling thread takes the first).
+        systems: each is factorised and solved by its own LAPACK call.
+    threads
+        How many parts run at once (the calling thread takes one lane of them). The answer does not
+        depend on it.
 
     Raises
     ------
     numpy.linalg.LinAlgError
-        A zero pivot (the matrix is singular to working precision), with LAPACK's ``info``.
+        A zero pivot (the matrix is singular to working precision), with the row as LAPACK's
+        ``info`` counts it in the whole band.
+
+    Notes
+    -----
+    The pivot indices (``ipiv``) are LAPACK's within each part.
     """
 
-    def __init__(self, band: np.ndarray, k: int, b: np.ndarray, parts: Sequence[tuple[int, int]]) -> None:
-        if band.shape[0] != 3 * k + 1 or b.shape[0] != band.shape[1] or b.ndim != 2:
-            raise ValueError(f"band {band.shape} and right-hand sides {b.shape} do not fit k = {k}.")
-        if not (band.flags.f_contiguous and b.flags.f_contiguous):
-            raise ValueError("the band and the right-hand sides must be Fortran-ordered.")
-        if band.dtype != np.float64 or b.dtype != np.float64:
-            raise ValueError("the band and the right-hand sides must be float64.")
+    def __init__(
+        self, band: np.ndarray, k: int, b: np.ndarray, parts: Sequence[tuple[int, int]], threads: int = 1
+    ) -> None:
+        if band.ndim != 2 or band.shape[0] != 3 * k + 1:
+            raise ValueError(f"band {band.shape} does not fit k = {k}.")
+        if not band.flags.f_contiguous or band.dtype != np.float64:
+            raise ValueError("the band must be a Fortran-ordered float64 array.")
         self.band, self.k = band, k
         self.N = band.shape[1]
+        self._check_rhs(b)
         covered = (
             len(parts) > 0
             and parts[0][0] == 0
@@ -143,41 +130,49 @@ class BandLU:
         )
         if not covered:  # a wrong range would let LAPACK write outside the arrays
             raise ValueError(f"parts {list(parts)} do not cover rows 0..{self.N} in order.")
-        self.parts = list(parts) if _GBSV is not None and _GBTRS is not None else [(0, self.N)]
-        if _GBSV is None or _GBTRS is None:
-            lu, piv, x, info = lapack.dgbsv(k, k, band, b, overwrite_ab=1, overwrite_b=1)
-            if info != 0:
-                raise np.linalg.LinAlgError(f"LAPACK gbsv info={info}")
-            self.band, self.ipiv = lu, piv
-            b[...] = x
-            return
+        self.parts = list(parts)
+        self.threads = max(1, int(threads))
         self.ipiv = np.empty(self.N, dtype=np.intc)
         infos = self._run(lambda lo, hi: self._gbsv(lo, hi, b))
-        bad = [info for info in infos if info != 0]
-        if bad:
-            raise np.linalg.LinAlgError(f"LAPACK gbsv info={bad[0]}")
+        for (lo, _), info in zip(self.parts, infos, strict=True):
+            if info != 0:
+                raise np.linalg.LinAlgError(f"LAPACK gbsv info={lo + info if info > 0 else info}")
 
     def solve(self, b: np.ndarray) -> None:
-        """Overwrite the ``(N, K)`` Fortran-ordered ``b`` with ``A^-1 b``."""
-        if _GBSV is None or _GBTRS is None:
-            x, info = lapack.dgbtrs(self.band, self.k, self.k, b, self.ipiv, overwrite_b=1)
-            if info != 0:  # pragma: no cover - gbtrs only reports invalid arguments
-                raise np.linalg.LinAlgError(f"LAPACK gbtrs info={info}")
-            b[...] = x
-            return
-        self._run(lambda lo, hi: self._gbtrs(lo, hi, b))
+        """Overwrite the ``(N, K)`` Fortran-ordered float64 ``b`` with ``A^-1 b``."""
+        self._check_rhs(b)
+        infos = self._run(lambda lo, hi: self._gbtrs(lo, hi, b))
+        if any(infos):  # pragma: no cover - gbtrs only reports invalid arguments
+            raise np.linalg.LinAlgError(f"LAPACK gbtrs info={infos}")
+
+    def _check_rhs(self, b: np.ndarray) -> None:
+        if b.ndim != 2 or b.shape[0] != self.N or b.shape[1] < 1:
+            raise ValueError(f"right-hand sides {b.shape} do not fit a band of {self.N} rows.")
+        if not b.flags.f_contiguous or b.dtype != np.float64:
+            raise ValueError("the right-hand sides must be a Fortran-ordered float64 array.")
 
     # -- the calls ------------------------------------------------------------------------------
 
     def _run(self, call: Callable[[int, int], int]) -> list[int]:
-        """``call`` on every part, the first on this thread; waits for all, even when interrupted, so
-        that no thread writes into the arrays after this returns."""
-        futures: list[Future[int]] = [_pool().submit(call, lo, hi) for lo, hi in self.parts[1:]]
+        """``call`` on every part, in ``threads`` lanes (the first on this thread); waits for every
+        lane, also through interrupts, so that no thread writes into the arrays after this returns."""
+        lanes = min(self.threads, len(self.parts)) if _GBSV is not None and _GBTRS is not None else 1
+        infos = [0] * len(self.parts)
+
+        def lane(first: int) -> None:
+            for i in range(first, len(self.parts), lanes):
+                infos[i] = call(*self.parts[i])
+
+        futures: list[Future[None]] = []
         try:
-            first = call(*self.parts[0])
+            for first in range(1, lanes):
+                futures.append(_POOL.get().submit(lane, first))
+            lane(0)
+            for future in futures:
+                future.result()
         finally:
-            wait(futures)
-        return [first, *(f.result() for f in futures)]
+            wait_all(futures)  # all done already, unless something above was interrupted or failed
+        return infos
 
     def _pointers(self, lo: int, b: np.ndarray) -> tuple[Any, Any, Any]:
         width = self.band.shape[0]
@@ -187,10 +182,13 @@ class BandLU:
         return band, ipiv, rhs
 
     def _gbsv(self, lo: int, hi: int, b: np.ndarray) -> int:
+        k, K, width = self.k, b.shape[1], self.band.shape[0]
+        if _GBSV is None or _GBTRS is None:
+            lu, piv, x, info = lapack.dgbsv(k, k, self.band[:, lo:hi], b[lo:hi], overwrite_ab=1)
+            self.band[:, lo:hi], self.ipiv[lo:hi], b[lo:hi] = lu, piv, x
+            return int(info)
         band, ipiv, rhs = self._pointers(lo, b)
         info = ctypes.c_int(0)
-        k, K, width = self.k, b.shape[1], self.band.shape[0]
-        assert _GBSV is not None
         _GBSV(
             _ref(hi - lo),
             _ref(k),
@@ -206,10 +204,13 @@ class BandLU:
         return info.value
 
     def _gbtrs(self, lo: int, hi: int, b: np.ndarray) -> int:
+        k, K, width = self.k, b.shape[1], self.band.shape[0]
+        if _GBSV is None or _GBTRS is None:
+            x, info = lapack.dgbtrs(self.band[:, lo:hi], k, k, b[lo:hi], self.ipiv[lo:hi])
+            b[lo:hi] = x
+            return int(info)
         band, ipiv, rhs = self._pointers(lo, b)
         info = ctypes.c_int(0)
-        k, K, width = self.k, b.shape[1], self.band.shape[0]
-        assert _GBTRS is not None
         _GBTRS(
             b"N",
             _ref(hi - lo),

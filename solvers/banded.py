@@ -80,8 +80,10 @@ from solvers.problem import dense
 
 __all__ = ["BandedSmoother", "BandedSmootherResult", "banded_smoother"]
 
-#: Steps of the batch (systems times horizon) per thread below which a solve is not split.
+#: Steps of the batch (systems times horizon) per LAPACK call below which the batch is not split.
 MIN_STEPS_PER_THREAD = 1000
+#: Most LAPACK calls a solve is split into.
+MAX_PARTS = 64
 
 
 @dataclass
@@ -282,9 +284,10 @@ class BandedSmoother:
             Also compute the componentwise backward error of the final solution (reported in
             :attr:`BandedSmootherResult.backward_error`), at the cost of two residual evaluations.
         threads
-            Factorise and solve the systems of the batch in up to this many groups on concurrent
+            Factorise and solve the groups of systems of the batch on up to this many concurrent
             threads (:class:`solvers.band_lu.BandLU`; LAPACK runs without the interpreter lock). The
-            answer is the same to the last bit for any number.
+            groups depend on the batch's size only, so the answer is the same to the last bit for
+            any number of threads.
 
         Returns
         -------
@@ -297,6 +300,8 @@ class BandedSmoother:
             relative to ``r`` that the system cannot be represented.
         """
         r, x0, y, rho = self._data(r, x0, y, weight, refine)
+        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+            raise ProblemError(f"threads must be a positive integer, got {threads!r}.")
         n, K = self.n, x0.shape[2]
         # Unknowns and right-hand sides as (K, B, T, 2n), rows z_t = [lam_t, x_t] (scaled): the
         # transpose of the column-major (N, K) array LAPACK works on.
@@ -312,11 +317,14 @@ class BandedSmoother:
             flat[index] += rho * value
         b = rhs.reshape(K, self.N).T  # (N, K), column-major: LAPACK works on it in place
         try:
-            lu = BandLU(band.T, self.k, b, self._parts(threads))
+            lu = BandLU(band.T, self.k, b, self._parts(), threads)
         except np.linalg.LinAlgError as err:
             raise ProblemError(
                 f"The KKT matrix is numerically singular ({err}): the weights or r are out of range."
             ) from None
+        except BaseException:
+            self._local.band = None  # never reused after a failure, whatever may still touch it
+            raise
         z = b.T.reshape(rhs.shape)  # b was solved in place (``rhs.reshape`` may have copied)
         for _ in range(int(refine)):
             correction = self._residual(z, xs0, yk, rho).reshape(K, self.N).T
@@ -327,12 +335,12 @@ class BandedSmoother:
         backward_error = self._backward_error(z, xs0, yk, rho) if check else None
         return self._result(z, x0, yk, rho, backward_error)
 
-    def _parts(self, threads: int) -> list[tuple[int, int]]:
-        """Rows ``[lo, hi)`` of up to ``threads`` groups of whole systems of the batch: one group when
-        the band is too small for a thread to pay (about 2000 steps of a system per group)."""
-        if isinstance(threads, bool) or int(threads) != threads or threads < 1:
-            raise ProblemError(f"threads must be a positive integer, got {threads!r}.")
-        groups = min(int(threads), self.B, max(1, (self.T * self.B) // MIN_STEPS_PER_THREAD))
+    def _parts(self) -> list[tuple[int, int]]:
+        """Rows ``[lo, hi)`` of the groups of whole systems that LAPACK factorises one call each: about
+        :data:`MIN_STEPS_PER_THREAD` steps per group, at most one system each and at most
+        :data:`MAX_PARTS`. They depend on the batch's size only, never on the number of threads, so
+        neither does the answer."""
+        groups = min(self.B, MAX_PARTS, max(1, (self.T * self.B) // MIN_STEPS_PER_THREAD))
         rows = 2 * self.n * self.T
         bounds = [len(g) for g in np.array_split(np.arange(self.B), groups)]
         ends = np.cumsum(bounds) * rows

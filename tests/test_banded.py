@@ -461,13 +461,33 @@ def test_threads_change_no_digit(kind: str) -> None:
     F, Q = ca_model(0.1, 1e-4)
     W, y, x0 = make_batch(rng, 5, 1200, kind=kind)
     sm = BandedSmoother(F, Q, E1, 1200, 5)
-    assert len(sm._parts(3)) == 3  # the size is large enough to be split
+    assert len(sm._parts()) == 5  # the size is large enough to be split, one system per part
     one = sm.solve(1e-2, x0, y, W, threads=1, check=True)
     for threads in (2, 3, 8):
         got = sm.solve(1e-2, x0, y, W, threads=threads, check=True)
         for name in ("means", "noise", "prior", "fit"):
             np.testing.assert_array_equal(getattr(got, name), getattr(one, name), err_msg=name)
         assert got.backward_error == one.backward_error
+
+
+def test_threads_change_no_digit_for_a_wide_band() -> None:
+    """With a half-bandwidth above 64 LAPACK factorises in blocks of columns counted from the start of
+    each call: the parts are fixed by the batch's size, so the thread count still changes nothing."""
+    rng = np.random.default_rng(15)
+    n, T, B = 33, 61, 41
+    F = np.eye(n) + 0.01 * rng.normal(size=(n, n))  # a general F: half-bandwidth 2n - 1 = 65
+    L = 0.1 * np.tril(rng.normal(size=(n, n))) + np.eye(n)
+    Q = L @ L.T
+    h = np.zeros(n)
+    h[0] = 1.0
+    sm = BandedSmoother(F, Q, h, T, B)
+    assert sm.k > 64 and len(sm._parts()) > 1
+    W = rng.random((B, T))
+    y = rng.normal(size=(B, T, 2))
+    x0 = rng.normal(size=(B, n, 2))
+    one = sm.solve(0.5, x0, y, W, threads=1)
+    for threads in (2, 3):
+        np.testing.assert_array_equal(sm.solve(0.5, x0, y, W, threads=threads).means, one.means)
 
 
 def test_band_lu_parts_equal_lapack_whole() -> None:
@@ -526,12 +546,34 @@ def test_band_lu_refuses_what_lapack_would_misread() -> None:
         BandLU(band.astype(np.float32), 3, b, [(0, 20)])
     with pytest.raises(ValueError, match="fit"):
         BandLU(band, 2, b, [(0, 20)])
+    band[6] = 1.0  # the identity: factorised, then solve's right-hand sides are checked too
+    fact = BandLU(band.copy(order="F"), 3, b.copy(order="F"), [(0, 20)])
+    for bad in (
+        np.zeros((20, 2)),
+        np.zeros((19, 2), order="F"),
+        np.zeros((20, 2), dtype=np.float32, order="F"),
+    ):
+        with pytest.raises(ValueError, match="right-hand sides"):
+            fact.solve(bad)
     for parts in ([(0, 10)], [(0, 10), (12, 20)], [(0, 25)], [(5, 20)], [(0, 0), (0, 20)], []):
         with pytest.raises(ValueError, match="cover"):
             BandLU(band.copy(order="F"), 3, b.copy(order="F"), parts)
 
 
-@pytest.mark.parametrize("threads", [0, -1, 1.5, True])
+def test_a_zero_pivot_is_named_by_its_row_in_the_whole_band() -> None:
+    from solvers.band_lu import BandLU
+
+    k, N = 1, 40
+    band = np.zeros((3 * k + 1, N), order="F")
+    band[2 * k] = 1.0
+    band[2 * k, 27] = 0.0  # row 28 (LAPACK counts from 1) of the second part
+    for parts in ([(0, N)], [(0, 20), (20, N)]):
+        for threads in (1, 2):
+            with pytest.raises(np.linalg.LinAlgError, match="info=28"):
+                BandLU(band.copy(order="F"), k, np.ones((N, 1), order="F"), parts, threads)
+
+
+@pytest.mark.parametrize("threads", [0, -1, 1.5, True, None, "2"])
 def test_bad_threads_raise(threads: object) -> None:
     F, Q, W, y, x0 = _good()
     with pytest.raises(ProblemError, match="threads"):

@@ -143,9 +143,12 @@ def test_a_forked_child_gets_pools_of_its_own() -> None:
     on the parent's pool threads, which do not exist in it."""
     import multiprocessing as mp
 
-    sc = po.paper_scenario("A", seed=0, horizon=60)
-    cfg = po.PMHTConfig(max_iter=5, threads=2)
+    from solvers import band_lu
+
+    sc = po.paper_scenario("A", seed=0, horizon=500)
+    cfg = po.PMHTConfig(max_iter=3, threads=2)
     parent = po.plan_pmht(sc, cfg).positions  # the pools now exist in this process
+    assert band_lu._POOL._pool is not None  # the exact smoother's pool too
     ctx = mp.get_context("fork")
     with ctx.Pool(1) as pool:
         child = pool.apply_async(_plan_positions, (sc, cfg)).get(timeout=60)
@@ -163,3 +166,60 @@ def test_bad_thread_counts_are_config_errors(threads: Any) -> None:
         estep(z, pos, None, None, 0.1, threads=threads)
     with pytest.raises(po.ConfigError, match="threads"):
         log_likelihood(z, pos, None, None, 0.1, threads=threads)
+
+
+def test_ordered_map_interrupted_while_waiting_leaves_nothing_running() -> None:
+    """Ctrl-C while the caller waits for a block: the interrupt reaches the caller only once no block
+    runs any more (the one waited for included)."""
+    import signal
+
+    running: set[int] = set()
+    lock = threading.Lock()
+
+    def work(lo: int, hi: int) -> int:
+        with lock:
+            running.add(lo)
+        time.sleep(0.4 if lo == 0 else 0.1)
+        with lock:
+            running.discard(lo)
+        return lo
+
+    main = threading.main_thread().ident
+    assert main is not None and threading.current_thread() is threading.main_thread()
+    # Python's own handler, whatever an earlier test in this process left installed.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    timer = threading.Timer(0.1, lambda: signal.pthread_kill(main, signal.SIGINT))
+    try:
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            for _ in ordered_map(work, [(i, i + 1) for i in range(6)], threads=2):
+                pass
+    finally:
+        timer.join()
+        signal.signal(signal.SIGINT, previous)
+    with lock:
+        assert running == set()
+
+
+def test_concurrent_stops_its_work_at_the_next_block() -> None:
+    from pmht_opt.parallel import concurrent
+
+    blocks: list[int] = []
+
+    def block(lo: int, hi: int) -> int:
+        time.sleep(0.01)
+        blocks.append(lo)
+        return lo
+
+    def many_blocks() -> int:
+        for _ in ordered_map(block, [(i, i + 1) for i in range(500)], 1):
+            pass
+        return len(blocks)
+
+    with pytest.raises(RuntimeError, match="body"), concurrent(2, many_blocks):
+        time.sleep(0.05)
+        raise RuntimeError("body")
+    done = len(blocks)
+    assert done < 100  # stopped long before its 500 blocks (5 s) were done
+    time.sleep(0.05)
+    assert len(blocks) == done

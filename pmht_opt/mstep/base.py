@@ -10,6 +10,7 @@ import numpy as np
 
 import solvers
 from pmht_opt.constraints.base import Constraint, ConstraintContext
+from pmht_opt.parallel import thread_count
 from pmht_opt.scenario import Scenario
 
 if TYPE_CHECKING:
@@ -112,7 +113,7 @@ class MStep(abc.ABC):
         self.T = scenario.horizon
         self.M = scenario.n_platforms
         self.x0 = scenario.initial_states
-        self.threads = max(1, int(threads))
+        self.threads = thread_count(threads)
         self._reference: BandedMStep | None = None
         self._setup()
 
