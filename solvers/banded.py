@@ -46,8 +46,8 @@ penalty becomes ``sigma_t = w_t (h' diag(d))^2 / r``, a signal-to-noise ratio pe
 upper triangular and ``h`` picks one component (``2n - 1`` in general; no other order of a step's
 unknowns gives a narrower band). The systems of the batch are stacked into one block-diagonal
 band and the ``K`` columns share the factorisation: one LAPACK ``gbsv`` (LU with partial
-pivoting) per call factorises the whole batch, or one per group of systems on concurrent threads
-(:mod:`solvers.band_lu`), with the same result to the last bit.
+pivoting) per group of systems, the groups fixed by the batch's size and run on concurrent threads
+(:mod:`solvers.band_lu`); for a band this narrow their LU is the whole band's to the last bit.
 
 Partial pivoting alone gives a small *normwise* backward error only: depending on the rows it picks,
 parts of the elimination follow the information form above, and on long coasting stretches with a
