@@ -65,10 +65,11 @@ class PMHTConfig:
         Iterations after which to keep a copy of the positions (e.g. ``(5, 20)`` for the paper's
         Figure 1).
     threads
-        Threads for the per-platform QPs of ``osqp`` and ``clarabel`` and for the exact smoother's
-        batch of platforms (``banded``, and the check of every other backend's answer); ``None`` uses
-        one per core up to the number of platforms. The plan does not depend on it, to the last bit.
-        Use 1 inside process-parallel Monte Carlo runs.
+        Threads for the per-platform QPs of ``osqp`` and ``clarabel``, for the exact smoother's
+        batch of platforms (``banded``, and the check of every other backend's answer) and for the
+        E-step's blocks of locales; ``None`` uses one per core the process may run on (up to the
+        number of platforms for the QPs). The plan does not depend on it, to the last bit. Use 1
+        inside process-parallel Monte Carlo runs.
     constraints
         Constraints on the paths (:mod:`pmht_opt.constraints`), imposed in every M-step; the returned
         plan meets them (hard) or reports how far it misses them (soft), see
