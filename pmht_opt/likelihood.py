@@ -112,9 +112,9 @@ class EStepInputs:
         finish(i, j, rows))`` after each block, in order, ``finish`` (default none) computing what the
         caller wants of the block while it is in cache. With ``out=None`` each block's weights go to a
         scratch block, overwritten later (``finish`` must then not return a view of it): for a caller
-        that wants the log-normalisers only. With
-        ``threads > 1`` the blocks, ``finish`` included, are computed on threads
-        (:func:`pmht_opt.parallel.ordered_map`): the same blocks with the same arithmetic."""
+        that wants the log-normalisers only. With ``threads > 1`` the blocks, ``finish`` included,
+        are computed on threads (:func:`pmht_opt.parallel.ordered_map`): the same blocks with the
+        same arithmetic."""
         M, T, _ = self.positions.shape
         N = self.locales.shape[0]
         TM = T * M
@@ -123,21 +123,14 @@ class EStepInputs:
         # Blocks of rows small enough to stay in cache through every pass.
         step = max(1, _BLOCK // TM)
         spans = [(i, min(i + step, N)) for i in range(0, N, step)]
-        if threads > 1 and len(spans) > 1:
 
-            def block(i: int, j: int) -> tuple[int, int, np.ndarray, Any]:
-                rows = scratch("dense_rows", j - i, TM) if out is None else out[i:j]
-                lse = _dense_rows(self.of_locales(i, j), p, const, rows, scratch("dense_tmp", j - i, TM))
-                return i, j, lse, None if finish is None else finish(i, j, rows)
+        def block(i: int, j: int) -> tuple[int, int, np.ndarray, Any]:
+            # Work arrays of the computing thread, kept across calls (fresh memory is slow to touch).
+            rows = scratch("dense_rows", j - i, TM) if out is None else out[i:j]
+            lse = _dense_rows(self.of_locales(i, j), p, const, rows, scratch("dense_tmp", j - i, TM))
+            return i, j, lse, None if finish is None else finish(i, j, rows)
 
-            yield from ordered_map(block, spans, threads)
-            return
-        tmp = np.empty((min(step, N), TM))
-        target = np.empty_like(tmp) if out is None else out
-        for i, j in spans:
-            rows = target[: j - i] if out is None else target[i:j]
-            lse = _dense_rows(self.of_locales(i, j), p, const, rows, tmp[: j - i])
-            yield i, j, lse, None if finish is None else finish(i, j, rows)
+        yield from ordered_map(block, spans, threads)
 
 
 def _dense_rows(

@@ -174,54 +174,33 @@ class BandLU:
             wait_all(futures)  # all done already, unless something above was interrupted or failed
         return infos
 
-    def _pointers(self, lo: int, b: np.ndarray) -> tuple[Any, Any, Any]:
+    def _arguments(self, lo: int, hi: int, b: np.ndarray, info: ctypes.c_int) -> tuple[Any, ...]:
+        """``(n, kl, ku, nrhs, ab, ldab, ipiv, b, ldb, info)`` of part ``[lo, hi)`` for LAPACK's
+        ``gbsv`` and ``gbtrs``: the part's columns of the band, rows of ``b`` and pivots."""
         width = self.band.shape[0]
         band = ctypes.cast(self.band.ctypes.data + 8 * width * lo, _DBL)
         ipiv = ctypes.cast(self.ipiv.ctypes.data + 4 * lo, _INT)
         rhs = ctypes.cast(b.ctypes.data + 8 * lo, _DBL)
-        return band, ipiv, rhs
+        k = _ref(self.k)
+        n, nrhs, ldab, ldb = _ref(hi - lo), _ref(b.shape[1]), _ref(width), _ref(self.N)
+        return n, k, k, nrhs, band, ldab, ipiv, rhs, ldb, ctypes.byref(info)
 
     def _gbsv(self, lo: int, hi: int, b: np.ndarray) -> int:
-        k, K, width = self.k, b.shape[1], self.band.shape[0]
-        if _GBSV is None or _GBTRS is None:
-            lu, piv, x, info = lapack.dgbsv(k, k, self.band[:, lo:hi], b[lo:hi], overwrite_ab=1)
-            self.band[:, lo:hi], self.ipiv[lo:hi], b[lo:hi] = lu, piv, x
-            return int(info)
-        band, ipiv, rhs = self._pointers(lo, b)
         info = ctypes.c_int(0)
-        _GBSV(
-            _ref(hi - lo),
-            _ref(k),
-            _ref(k),
-            _ref(K),
-            band,
-            _ref(width),
-            ipiv,
-            rhs,
-            _ref(self.N),
-            ctypes.byref(info),
-        )
+        if _GBSV is None or _GBTRS is None:
+            lu, piv, x, info_f2py = lapack.dgbsv(
+                self.k, self.k, self.band[:, lo:hi], b[lo:hi], overwrite_ab=1
+            )
+            self.band[:, lo:hi], self.ipiv[lo:hi], b[lo:hi] = lu, piv, x
+            return int(info_f2py)
+        _GBSV(*self._arguments(lo, hi, b, info))
         return info.value
 
     def _gbtrs(self, lo: int, hi: int, b: np.ndarray) -> int:
-        k, K, width = self.k, b.shape[1], self.band.shape[0]
-        if _GBSV is None or _GBTRS is None:
-            x, info = lapack.dgbtrs(self.band[:, lo:hi], k, k, b[lo:hi], self.ipiv[lo:hi])
-            b[lo:hi] = x
-            return int(info)
-        band, ipiv, rhs = self._pointers(lo, b)
         info = ctypes.c_int(0)
-        _GBTRS(
-            b"N",
-            _ref(hi - lo),
-            _ref(k),
-            _ref(k),
-            _ref(K),
-            band,
-            _ref(width),
-            ipiv,
-            rhs,
-            _ref(self.N),
-            ctypes.byref(info),
-        )
+        if _GBSV is None or _GBTRS is None:
+            x, info_f2py = lapack.dgbtrs(self.band[:, lo:hi], self.k, self.k, b[lo:hi], self.ipiv[lo:hi])
+            b[lo:hi] = x
+            return int(info_f2py)
+        _GBTRS(b"N", *self._arguments(lo, hi, b, info))
         return info.value
