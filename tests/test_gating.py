@@ -285,6 +285,45 @@ def test_gated_estep_equals_dense_on_random_paths(seed: int, log_r: float, prior
         np.testing.assert_array_equal(np.asarray(g.weights), np.asarray(d.weights))
 
 
+@settings(max_examples=examples(25), deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    log_r=st.floats(np.log(1e-3), np.log(0.1)),
+    prior=st.sampled_from(["uniform", "dirichlet"]),
+    grid=st.booleans(),
+    fraction=st.floats(0.0, 1.5),
+)
+def test_the_count_inside_bounds_the_candidates_and_keeps_the_verdict(
+    seed: int, log_r: float, prior: str, grid: bool, fraction: float
+) -> None:
+    """Property: the trees' count of points well inside the discs never exceeds the candidates (it
+    misses only points within the rounding room of a radius), and the estimate of a few locales, which
+    uses it to settle "too many" early, gives every limit the exact count's verdict. On a grid of
+    coordinates many points are at equal distances from a locale."""
+    from pmht_opt import candidates
+    from pmht_opt.candidates import TreeCandidates
+    from pmht_opt.likelihood import EStepInputs
+
+    z, pos, lt, lk, r = _case(seed, prior, float(np.exp(log_r)))
+    if grid:
+        z, pos = np.round(z * 4) / 4, np.round(pos * 4) / 4
+    z, lt, lk = z[:100], None if lt is None else lt[:100], None if lk is None else lk[:100]
+    inputs = EStepInputs(z, pos, lt, lk, r)
+    margin = gate_margin("auto", pos.shape[1], pos.shape[0])
+    assert margin is not None
+    tree = TreeCandidates(inputs, margin)
+    exact = len(_brute_candidates(z, pos, tree.query, tree.rho2))
+    inside = tree.inside_count()
+    assert inside <= exact
+    assert inside >= exact - max(3, exact // 1000)
+    limit = fraction * exact
+    estimate = TreeCandidates(inputs, margin).estimate(limit)
+    assert (estimate > limit) == (exact > limit)
+    event(
+        "settled by the count inside" if tree._plan().upper > candidates._TRY_INSIDE * limit else "searched"
+    )
+
+
 @pytest.mark.parametrize("prior", ["uniform", "dirichlet", "windows"])
 def test_blocks_of_locales_do_not_change_a_digit(prior: str, monkeypatch: Any) -> None:
     """The gated E-step in blocks of a few locales equals it in one block bit for bit, and its sums
