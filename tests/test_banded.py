@@ -470,11 +470,16 @@ def test_threads_change_no_digit(kind: str) -> None:
         assert got.backward_error == one.backward_error
 
 
-def test_threads_change_no_digit_for_a_wide_band() -> None:
+def test_threads_change_no_digit_for_a_wide_band(monkeypatch: pytest.MonkeyPatch) -> None:
     """With a half-bandwidth above 64 LAPACK factorises in blocks of columns counted from the start of
-    each call: the parts are fixed by the batch's size, so the thread count still changes nothing."""
+    each call, so another split into parts changes digits: the parts are fixed by the batch's size,
+    and the thread count still changes nothing. (Parts of fewer steps than the default keep the band
+    small: 8k rows instead of the 130k it takes to split a batch at the default size.)"""
+    from solvers import banded
+
+    monkeypatch.setattr(banded, "MIN_STEPS_PER_THREAD", 60)
     rng = np.random.default_rng(15)
-    n, T, B = 33, 61, 41
+    n, T, B = 33, 20, 6
     F = np.eye(n) + 0.01 * rng.normal(size=(n, n))  # a general F: half-bandwidth 2n - 1 = 65
     L = 0.1 * np.tril(rng.normal(size=(n, n))) + np.eye(n)
     Q = L @ L.T
@@ -488,6 +493,9 @@ def test_threads_change_no_digit_for_a_wide_band() -> None:
     one = sm.solve(0.5, x0, y, W, threads=1)
     for threads in (2, 3):
         np.testing.assert_array_equal(sm.solve(0.5, x0, y, W, threads=threads).means, one.means)
+    monkeypatch.setattr(banded, "MIN_STEPS_PER_THREAD", 40)  # three parts instead of two
+    assert len(sm._parts()) == 3
+    assert not np.array_equal(sm.solve(0.5, x0, y, W, threads=1).means, one.means)
 
 
 def test_band_lu_parts_equal_lapack_whole() -> None:
