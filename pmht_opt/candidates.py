@@ -293,6 +293,7 @@ class TreeCandidates:
             np.searchsorted(pair_n, np.arange(N + 1)),
             spans,
             float(cumulative[-1]) if N else 0.0,
+            K,
         )
 
     def _search_block(self, plan: _SearchPlan, lo: int, hi: int) -> Block:
@@ -305,9 +306,14 @@ class TreeCandidates:
         n, m = plan.pair_n[ph], plan.pair_m[ph]
         pts = plan.points[m, kh]  # (hits, C, 2)
         d2 = squared_distance(z[n, 0, None], z[n, 1, None], pts[..., 0], pts[..., 1])
-        inside = d2 <= plan.rho2[ph, None]
-        h, c = np.nonzero(inside)
-        return lo, hi, n[h], plan.times[m[h], kh[h] * _CHUNK + c], m[h], d2[inside]
+        # The points inside, in the order of np.nonzero(d2 <= rho2), as flat indices into the (hits,
+        # C) array: entry ``i`` is point ``i % C`` of hit ``i // C``, whose time sits at ``i`` plus
+        # the hit's offset in the flat (M, K * C) array of times.
+        inside = np.flatnonzero(d2 <= plan.rho2[ph, None])
+        h = inside // _CHUNK
+        offset = (m * plan.n_chunks + kh - np.arange(kh.size)) * _CHUNK
+        times = plan.times.reshape(-1)[inside + offset[h]]
+        return lo, hi, n[h], times, m[h], d2.reshape(-1)[inside]
 
 
 class _SearchPlan(NamedTuple):
@@ -323,6 +329,8 @@ class _SearchPlan(NamedTuple):
     spans: list[tuple[int, int]]
     #: The points of the chunks the pairs' discs meet: an upper bound on the number of candidates.
     upper: float
+    #: Chunks per path (``K``).
+    n_chunks: int
 
 
 __all__ = ["Block", "SupportCandidates", "TreeCandidates"]

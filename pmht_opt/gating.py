@@ -246,7 +246,9 @@ class _Accumulator:
     """
 
     def __init__(self, z: np.ndarray, N: int, T: int, M: int) -> None:
-        self.z, self.N, self.T, self.M = z, N, T, M
+        self.N, self.T, self.M = N, T, M
+        # The locales' coordinates as two contiguous arrays: a block gathers from them twice.
+        self.zx, self.zy = np.ascontiguousarray(z[:, 0]), np.ascontiguousarray(z[:, 1])
         TM = T * M
         self.W = np.zeros(TM)
         self.WZ = np.zeros((2, TM))
@@ -269,8 +271,7 @@ class _Accumulator:
         lo, hi, local, t, plat, w, lse = block
         M, n = self.M, hi - lo
         col = (t * M + plat).astype(self.column_dtype)
-        rows = lo + local
-        wz = (w * self.z[rows, 0], w * self.z[rows, 1])
+        wz = (w * self.zx[lo:hi][local], w * self.zy[lo:hi][local])
         platform = np.bincount(local * M + plat, weights=w, minlength=n * M).reshape(n, M)
         counts = np.bincount(local, minlength=n)
         starts = np.zeros(n, dtype=np.intp)
