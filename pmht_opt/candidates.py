@@ -218,7 +218,7 @@ class TreeCandidates:
         return found if found is not None else self._search_block(self._plan(), lo, hi)
 
     def _chunks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The path points in the trees' order, in chunks ``(M, K, C, 2)`` (padded with infinite
+        """The path points in the trees' order, in chunks ``(2, M, K, C)`` (padded with infinite
         points, which no radius reaches), the time of each ``(M, K * C)``, and each chunk's bounding
         disc: centres ``(M, K, 2)`` and radii ``(M, K)``.
 
@@ -231,7 +231,9 @@ class TreeCandidates:
         pad = K * _CHUNK - T
         order = np.stack([tree.indices for tree in self.trees])  # (M, T)
         ordered = np.take_along_axis(self.positions, order[..., None], axis=1)
+        # Each coordinate contiguous, (M, K, C): a block gathers whole chunks of one coordinate.
         points = np.concatenate([ordered, np.full((M, pad, 2), np.inf)], axis=1)
+        points = np.ascontiguousarray(np.moveaxis(points, 2, 0)).reshape(2, M, K, _CHUNK)
         edge = np.concatenate([ordered, np.repeat(ordered[:, -1:], pad, axis=1)], axis=1)
         edge = edge.reshape(M, K, _CHUNK, 2)
         # One coordinate at a time: numpy reduces a strided axis of the whole array far more slowly.
@@ -240,7 +242,7 @@ class TreeCandidates:
         centre = 0.5 * (low + high)
         half = 0.5 * np.hypot(high[..., 0] - low[..., 0], high[..., 1] - low[..., 1])
         times = np.concatenate([order, np.zeros((M, pad), dtype=order.dtype)], axis=1)
-        return points.reshape(M, K, _CHUNK, 2), times, centre, half
+        return points, times, centre, half
 
     def _search(self) -> Iterator[Block]:
         """The chunked search (class docstring), a block of locales at a time."""
@@ -304,8 +306,7 @@ class TreeCandidates:
         ph, kh = np.nonzero(plan.hits[p0:p1])
         ph += p0
         n, m = plan.pair_n[ph], plan.pair_m[ph]
-        pts = plan.points[m, kh]  # (hits, C, 2)
-        d2 = squared_distance(z[n, 0, None], z[n, 1, None], pts[..., 0], pts[..., 1])
+        d2 = squared_distance(z[n, 0, None], z[n, 1, None], plan.points[0][m, kh], plan.points[1][m, kh])
         # The points inside, in the order of np.nonzero(d2 <= rho2), as flat indices into the (hits,
         # C) array: entry ``i`` is point ``i % C`` of hit ``i // C``, whose time sits at ``i`` plus
         # the hit's offset in the flat (M, K * C) array of times.

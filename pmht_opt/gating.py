@@ -273,9 +273,9 @@ class _Accumulator:
         col = (t * M + plat).astype(self.column_dtype)
         wz = (w * self.zx[lo:hi][local], w * self.zy[lo:hi][local])
         platform = np.bincount(local * M + plat, weights=w, minlength=n * M).reshape(n, M)
-        counts = np.bincount(local, minlength=n)
-        starts = np.zeros(n, dtype=np.intp)
-        np.cumsum(counts[:-1], out=starts[1:])
+        # The rows are sorted: where each starts, and its number of entries, by bisection.
+        bounds = np.searchsorted(local, np.arange(n + 1))
+        starts, counts = bounds[:-1], np.diff(bounds)
         largest, best_column = row_maxima(w, col, local, starts, self.T * M)
         return _Prepared(lo, hi, col, w, wz, lse, platform, counts, largest, best_column)
 
