@@ -17,7 +17,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from pmht_opt.gating import GATE_MAX_FRACTION, estep_gated, gate_margin, gated_log_normalisers, row_maxima
+from pmht_opt.gating import (
+    GATE_MAX_FRACTION,
+    SparseParts,
+    estep_gated,
+    gate_margin,
+    gated_log_normalisers,
+    row_maxima,
+)
 from pmht_opt.likelihood import EStepInputs
 from pmht_opt.parallel import thread_count
 
@@ -25,7 +32,26 @@ from pmht_opt.parallel import thread_count
 SUMMARY_FLOOR = 1e-12
 
 
-@dataclass
+class _JoinedOnRead:
+    """A dataclass field that may be given as :class:`SparseParts` and reads as their joined matrix,
+    joined once, on the first read (the pieces are then dropped)."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.slot = "_" + name
+
+    def __get__(self, obj: object, objtype: type | None = None) -> np.ndarray | sp.csr_matrix:
+        if obj is None:  # no default: the field is required
+            raise AttributeError(self.slot[1:])
+        value = obj.__dict__[self.slot]
+        if isinstance(value, SparseParts):
+            value = obj.__dict__[self.slot] = value.join()
+        return value
+
+    def __set__(self, obj: object, value: np.ndarray | sp.csr_matrix | SparseParts) -> None:
+        obj.__dict__[self.slot] = value
+
+
+@dataclass(kw_only=True)
 class EStepResult:
     """Weights and their sufficient statistics for one E-step.
 
@@ -36,7 +62,8 @@ class EStepResult:
         ``t + 1`` (rows sum to one). A dense ``(N, T*M)`` array, or, from a gated E-step
         (:attr:`gated`), a ``scipy.sparse.csr_matrix`` of the same shape and layout whose missing
         entries are weights below ``exp(-gate)`` of their row's largest (zero). The methods below
-        handle both; :meth:`weights_ntm` gives a dense ``(N, T, M)`` array.
+        handle both; :meth:`weights_ntm` gives a dense ``(N, T, M)`` array. A gated E-step may
+        give it as :class:`SparseParts`, joined when first read.
     W
         ``(T, M)``, ``sum_n w[n, t, m]``: the weight of the synthetic measurement.
     WZ
@@ -46,7 +73,7 @@ class EStepResult:
         objective.
     """
 
-    weights: np.ndarray | sp.csr_matrix
+    weights: _JoinedOnRead = _JoinedOnRead()
     W: np.ndarray
     WZ: np.ndarray
     log_normaliser: np.ndarray
@@ -62,12 +89,13 @@ class EStepResult:
     @property
     def gated(self) -> bool:
         """Whether the weights are sparse (a gated E-step)."""
-        return sp.issparse(self.weights)
+        raw = self.__dict__["_weights"]  # without joining SparseParts
+        return isinstance(raw, SparseParts) or sp.issparse(raw)
 
     @property
     def n_times(self) -> int:
         """``T``."""
-        return int(self.weights.shape[1]) // self.n_platforms
+        return int(self.W.shape[0])
 
     @property
     def log_likelihood(self) -> float:
@@ -364,6 +392,7 @@ __all__ = [
     "EStepInputs",
     "EStepResult",
     "EStepSummary",
+    "SparseParts",
     "estep",
     "gate_margin",
     "log_likelihood",

@@ -426,3 +426,40 @@ def test_the_objective_alone_follows_a_gate_given_up_midway(monkeypatch: Any) ->
     seen.clear()
     assert log_likelihood(z, pos, lt, lk, r, gate="auto") == es.log_likelihood
     assert seen[-1] == "gave up" and seen.count("block") > 1
+
+
+def test_gated_weights_are_joined_on_first_read_only() -> None:
+    """A gated E-step keeps its weights as the blocks' pieces until they are read: the EM loop's own
+    reads (``gated``, ``n_times``, the sums) join nothing; the first read of ``weights`` gives the CSR
+    matrix of the pieces, the same on every read, also through copies and pickles."""
+    import dataclasses
+    import pickle
+
+    from pmht_opt import candidates
+    from pmht_opt.gating import SparseParts
+
+    z, pos, lt, lk, r = _case(11, "uniform", 0.01)
+    old = candidates._BLOCK
+    try:
+        candidates._BLOCK = 64  # many blocks, so the join has pieces to put together
+        es = estep(z, pos, lt, lk, r, gate="auto")
+    finally:
+        candidates._BLOCK = old
+    parts = es.__dict__["_weights"]
+    assert isinstance(parts, SparseParts) and len(parts.values) > 1
+    assert es.gated and es.n_times == pos.shape[1] and es.log_likelihood == np.sum(es.log_normaliser)
+    assert es.__dict__["_weights"] is parts  # nothing above joined the pieces
+    expected = sp.csr_matrix(
+        (np.concatenate(parts.values), np.concatenate(parts.columns), parts.indptr), shape=parts.shape
+    )
+    first = es.weights
+    assert isinstance(first, sp.csr_matrix) and es.weights is first  # joined once
+    for name in ("data", "indices", "indptr"):
+        np.testing.assert_array_equal(getattr(first, name), getattr(expected, name))
+    np.testing.assert_allclose(first.sum(axis=0).A1.reshape(es.W.shape), es.W, rtol=1e-12)
+    again = estep(z, pos, lt, lk, r, gate="auto")
+    for copy in (pickle.loads(pickle.dumps(again)), dataclasses.replace(again, largest=None)):
+        assert copy.gated
+        np.testing.assert_array_equal(copy.weights.toarray(), first.toarray())
+    with pytest.raises(TypeError):
+        type(es)(es.weights, es.W, es.WZ, es.log_normaliser, es.n_platforms)  # keywords only
