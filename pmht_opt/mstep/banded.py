@@ -11,7 +11,6 @@ objective keeps its precision when ``q dt^5`` is tiny against the positions.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import ClassVar
 
 import numpy as np
@@ -42,7 +41,7 @@ class BandedMStep(MStep):
         except solvers.ProblemError as err:
             raise SolverError(f"banded: the M-step cannot be solved: {err}", "banded", "error") from err
 
-    def _solve(self, data: MStepData, exact: Callable[[], BandedSmootherResult]) -> MStepOutput:
+    def _solve(self, data: MStepData) -> MStepOutput:
         res = self.smooth(data)
         return MStepOutput(
             states=axis_states(res.means),

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import abc
-import functools
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar
 
@@ -12,12 +10,11 @@ import numpy as np
 
 import solvers
 from pmht_opt.constraints.base import Constraint, ConstraintContext
-from pmht_opt.parallel import concurrent, thread_count
+from pmht_opt.parallel import thread_count
 from pmht_opt.scenario import Scenario
 
 if TYPE_CHECKING:
     from pmht_opt.mstep.banded import BandedMStep
-    from solvers.banded import BandedSmootherResult
 
 
 @dataclass
@@ -129,28 +126,17 @@ class MStep(abc.ABC):
 
         The answer is checked before it is returned (:func:`~pmht_opt.mstep.check.check_answer`): a
         backend that reports success on a wrong answer raises
-        :class:`~pmht_opt.exceptions.WrongAnswerError`. The check's reference, the exact smoother's
-        answer for the same weights, does not depend on the backend's answer: with more than one
-        thread it is computed beside the backend's own solve (:func:`~pmht_opt.parallel.concurrent`;
-        its LAPACK work runs without the interpreter lock, and the QP backends leave a core partly
-        idle), and a backend that needs it earlier waits for it. The numbers are the same either way.
+        :class:`~pmht_opt.exceptions.WrongAnswerError`.
         """
         from pmht_opt.mstep.check import check_answer
 
-        if self.name == "banded":  # the reference itself
-            out = self._solve(data, lambda: self.reference().smooth(data))
-            check_answer(self, data, out)
-            return out
-        with concurrent(self.threads, self.reference().smooth, data) as result:
-            exact = functools.cache(result)  # computed once, also where it runs inline
-            out = self._solve(data, exact)
-            check_answer(self, data, out, exact)
+        out = self._solve(data)
+        check_answer(self, data, out)
         return out
 
     @abc.abstractmethod
-    def _solve(self, data: MStepData, exact: Callable[[], BandedSmootherResult]) -> MStepOutput:
-        """The backend's own solve; ``exact()`` gives the exact smoother's answer for the same weights
-        (unconstrained), for backends that use it."""
+    def _solve(self, data: MStepData) -> MStepOutput:
+        """The backend's own solve."""
 
     def reference(self) -> BandedMStep:
         """The exact unconstrained smoother of this scenario, which answers are checked against."""

@@ -11,8 +11,7 @@ describe.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import scipy.sparse as sp
@@ -25,9 +24,6 @@ from pmht_opt.mstep.base import MStep, MStepData, MStepOutput, check_cvxpy_solve
 from pmht_opt.mstep.formulation import QPLayout, dynamics_rows
 from pmht_opt.mstep.qp import check_solution
 from pmht_opt.mstep.rows import RowBuilder, assemble, soften_cvxpy
-
-if TYPE_CHECKING:
-    from solvers.banded import BandedSmootherResult
 
 #: Statuses of a solve stopped by a limit of the caller's, not by the problem.
 _LIMITS = frozenset({solvers.Status.MAX_ITER, solvers.Status.TIME_LIMIT, solvers.Status.INTERRUPTED})
@@ -114,7 +110,7 @@ class JointCvxpyMStep(MStep):
             P=P, q=np.concatenate([q, *slack_cost]), A=A, b=np.concatenate(b), cones=tuple(cones)
         )
 
-    def _solve(self, data: MStepData, exact: Callable[[], BandedSmootherResult]) -> MStepOutput:
+    def _solve(self, data: MStepData) -> MStepOutput:
         problem = self._problem(data)
         try:
             session = self.session_class(problem, extra=self._native, **self.options)

@@ -8,8 +8,7 @@ covariance ``R / W`` (paper eqs 15-16; docs/model.md section 4.4). The x and y a
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
@@ -17,16 +16,13 @@ import solvers
 from pmht_opt.mstep.base import MStep, MStepData, MStepOutput
 from solvers.kalman import rts_smoother
 
-if TYPE_CHECKING:
-    from solvers.banded import BandedSmootherResult
-
 
 class KalmanMStep(MStep):
     """RTS smoother per platform and axis on the synthetic measurements; takes no constraints."""
 
     name: ClassVar[str] = "kalman"
 
-    def _solve(self, data: MStepData, exact: Callable[[], BandedSmootherResult]) -> MStepOutput:
+    def _solve(self, data: MStepData) -> MStepOutput:
         zt, W = data.synthetic()
         model = self.model
         x0 = np.stack([self.x0[:, 0:3], self.x0[:, 3:6]], axis=-1)  # (M, 3, 2)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -28,9 +28,6 @@ from pmht_opt.mstep.tuning import (
 )
 from pmht_opt.scenario import Scenario
 from pmht_opt.verify import resolution
-
-if TYPE_CHECKING:
-    from solvers.banded import BandedSmootherResult
 
 #: Largest violation of a platform's rows by the exact unconstrained optimum for it to be taken as the
 #: constrained optimum without a solve (rounding of positions of order 10 is far below it); relative
@@ -142,15 +139,8 @@ class QPMStep(MStep):
             margin=MARGIN_RESOLUTIONS * resolution(self.scenario),
         )
 
-    def _exact_states(self, exact: Callable[[], BandedSmootherResult]) -> np.ndarray:
-        """The exact unconstrained answer as ``(M, T+1, 6)`` states."""
-        return self._with_start(axis_states(exact().means[:, 1:]))
-
-    def _screen(
-        self, data: MStepData, rows: dict[int, PlatformRows], exact_states: np.ndarray | None
-    ) -> list[int]:
-        """The platforms that need a solve (``exact_states`` may be ``None`` where no platform has
-        rows and the exact smoother does not stand in for the others).
+    def _screen(self, data: MStepData, rows: dict[int, PlatformRows], exact_states: np.ndarray) -> list[int]:
+        """The platforms that need a solve.
 
         Where the exact unconstrained optimum already meets a platform's rows it is that platform's
         constrained optimum too: no solve. Without rows it is the answer outright when the exact
@@ -162,7 +152,6 @@ class QPMStep(MStep):
         for m in range(self.M):
             items = rows[m].items if m in rows else []
             if items:
-                assert exact_states is not None
                 z = exact_states[m, 1:].reshape(-1)
                 exact_ok[m] = all(np.all(i.block.residual(z) <= _screen_tol(i.block)) for i in items)
             else:
@@ -187,14 +176,13 @@ class QPMStep(MStep):
 
         return check
 
-    def _solve(self, data: MStepData, exact: Callable[[], BandedSmootherResult]) -> MStepOutput:
+    def _solve(self, data: MStepData) -> MStepOutput:
         rows = self.rows.rows(data.ctx, data.active, data.strengths)
-        constrained = any(r.items for r in rows.values())
-        # The exact answer decides which platforms need a solve only with rows or under "auto";
-        # otherwise the platforms with weight are solved while it is computed (MStep.solve).
-        early = constrained or self.exact_unconstrained
-        exact_states = self._exact_states(exact) if early else None
+        exact = self.reference().smooth(data)
+        exact_states = self._with_start(axis_states(exact.means[:, 1:]))
         active = self._screen(data, rows, exact_states)
+
+        constrained = any(r.items for r in rows.values())
         budget = solvers.WorkBudget(self.mstep_work) if constrained and self.mstep_work else None
         verdicts: dict[int, PmhtOptError] = {}
 
@@ -221,10 +209,8 @@ class QPMStep(MStep):
             answers = list(self._pool.map(one, active))
         else:
             answers = [one(m) for m in active]
-        if exact_states is None:
-            exact_states = self._exact_states(exact)
         body = exact_states[:, 1:].copy()
-        noise = axis_states(exact().noise)
+        noise = axis_states(exact.noise)
         for m, (_, states, u) in zip(active, answers, strict=True):
             body[m], noise[m] = states, u
         sols = [sol for sol, _, _ in answers]
@@ -234,7 +220,7 @@ class QPMStep(MStep):
             fallbacks=sum("fallback" in s.info for s in sols),
             noise=noise,
             constrained=tuple(sorted(m for m, r in rows.items() if r.items)),
-            info={"solved": tuple(active)},
+            info={"exact": exact, "solved": tuple(active)},
         )
         if sols:
             worst = max(sols, key=lambda s: (s.status is not solvers.Status.OPTIMAL, s.iterations))
