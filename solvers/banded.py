@@ -67,6 +67,7 @@ their digits when ``q dt^5`` is small against the positions, and the fit term fr
 
 from __future__ import annotations
 
+import functools
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -340,11 +341,7 @@ class BandedSmoother:
         :data:`MIN_STEPS_PER_THREAD` steps per group, at most one system each and at most
         :data:`MAX_PARTS`. They depend on the batch's size only, never on the number of threads, so
         neither does the answer."""
-        groups = min(self.B, MAX_PARTS, max(1, (self.T * self.B) // MIN_STEPS_PER_THREAD))
-        rows = 2 * self.n * self.T
-        bounds = [len(g) for g in np.array_split(np.arange(self.B), groups)]
-        ends = np.cumsum(bounds) * rows
-        return [(int(lo), int(hi)) for lo, hi in zip(np.r_[0, ends[:-1]], ends, strict=True)]
+        return list(_groups(self.B, self.T, self.n, MIN_STEPS_PER_THREAD, MAX_PARTS))
 
     def _data(
         self, r: float, x0: ArrayLike, y: ArrayLike, weight: ArrayLike, refine: int
@@ -434,6 +431,17 @@ class BandedSmoother:
         if np.any(res[denom == 0] > 0):  # pragma: no cover - a zero system with a residual
             return float(np.inf)
         return float(ratio.max())
+
+
+@functools.lru_cache(maxsize=64)
+def _groups(B: int, T: int, n: int, min_steps: int, max_parts: int) -> tuple[tuple[int, int], ...]:
+    """:meth:`BandedSmoother._parts` for a batch of ``B`` systems of ``T`` steps of ``n`` states (computed
+    once per size: it is asked at every solve)."""
+    groups = min(B, max_parts, max(1, (T * B) // min_steps))
+    rows = 2 * n * T
+    bounds = [len(g) for g in np.array_split(np.arange(B), groups)]
+    ends = np.cumsum(bounds) * rows
+    return tuple((int(lo), int(hi)) for lo, hi in zip(np.r_[0, ends[:-1]], ends, strict=True))
 
 
 _CACHE: OrderedDict[tuple[object, ...], BandedSmoother] = OrderedDict()
