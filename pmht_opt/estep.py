@@ -12,6 +12,7 @@ triples included, so consumers that rank tiny weights (the visit choice of
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,7 +35,10 @@ SUMMARY_FLOOR = 1e-12
 
 class _JoinedOnRead:
     """A dataclass field that may be given as :class:`SparseParts` and reads as their joined matrix,
-    joined once, on the first read (the pieces are then dropped)."""
+    joined once, on the first read (the pieces are then dropped; two threads reading at once wait
+    for one join)."""
+
+    _lock = threading.Lock()
 
     def __set_name__(self, owner: type, name: str) -> None:
         self.slot = "_" + name
@@ -44,7 +48,10 @@ class _JoinedOnRead:
             raise AttributeError(self.slot[1:])
         value = obj.__dict__[self.slot]
         if isinstance(value, SparseParts):
-            value = obj.__dict__[self.slot] = value.join()
+            with self._lock:
+                value = obj.__dict__[self.slot]
+                if isinstance(value, SparseParts):
+                    value = obj.__dict__[self.slot] = value.join()
         return value
 
     def __set__(self, obj: object, value: np.ndarray | sp.csr_matrix | SparseParts) -> None:
@@ -112,30 +119,29 @@ class EStepResult:
     def weights_ntm(self) -> np.ndarray:
         """Weights as ``(N, T, M)``: a view of dense weights; for gated ones a new array, recomputed
         with every triple (the dropped ones too), as the dense E-step gives it."""
+        if self.inputs is not None:  # recomputed: the sparse weights are not needed (nor joined)
+            N = self.log_normaliser.shape[0]
+            return self.inputs.rows(0, N).reshape(N, -1, self.n_platforms)
         w = self.weights
-        if self.inputs is not None:
-            return self.inputs.rows(0, w.shape[0]).reshape(w.shape[0], -1, self.n_platforms)
         dense = w.toarray() if isinstance(w, sp.csr_matrix) else w
         return np.asarray(dense).reshape(w.shape[0], -1, self.n_platforms)
 
     def locale_weights(self, n: int) -> np.ndarray:
         """Weights of locale ``n`` as ``(T, M)``: a view for dense weights; for gated ones the row
         recomputed with every triple, so the ones the gate dropped keep their (tiny) values and order."""
-        w = self.weights
-        if self.inputs is None and not isinstance(w, sp.csr_matrix):
-            return np.asarray(w[n]).reshape(-1, self.n_platforms)
+        if self.inputs is None and not isinstance(self.weights, sp.csr_matrix):
+            return np.asarray(self.weights[n]).reshape(-1, self.n_platforms)
         return self.locales_weights(n, n + 1)[0]
 
     def locales_weights(self, lo: int, hi: int) -> np.ndarray:
         """Weights of locales ``lo .. hi - 1`` as ``(hi - lo, T, M)``, each row as :meth:`locale_weights`
         gives it (recomputed rows agree with one another bit for bit whatever the range)."""
-        w = self.weights
-        if self.inputs is not None:
+        if self.inputs is not None:  # recomputed: the sparse weights are not needed (nor joined)
             rows = self.inputs.rows(lo, hi)
-        elif isinstance(w, sp.csr_matrix):
-            rows = w[lo:hi].toarray()
+        elif isinstance(self.weights, sp.csr_matrix):
+            rows = self.weights[lo:hi].toarray()
         else:
-            rows = np.asarray(w[lo:hi])
+            rows = np.asarray(self.weights[lo:hi])
         return rows.reshape(hi - lo, self.n_times, self.n_platforms)
 
     def time_prior(self) -> np.ndarray:

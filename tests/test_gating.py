@@ -285,21 +285,39 @@ def test_gated_estep_equals_dense_on_random_paths(seed: int, log_r: float, prior
         np.testing.assert_array_equal(np.asarray(g.weights), np.asarray(d.weights))
 
 
-@settings(max_examples=examples(25), deadline=None)
+def _radii_on_points(tree: Any, seed: int) -> None:
+    """Put every queried pair's radius exactly on the computed squared distance of one of its path
+    points, or on a float neighbour of it: points exactly on (or one rounding inside or outside) the
+    radii, where the trees' distances and the search's can disagree."""
+    rng = np.random.default_rng(seed)
+    z, pos = tree.z, tree.positions
+    d2 = (z[:, None, None, 0] - pos[None, :, :, 0]) ** 2 + (z[:, None, None, 1] - pos[None, :, :, 1]) ** 2
+    N, M, T = d2.shape
+    rho2 = np.take_along_axis(d2, rng.integers(0, T, (N, M))[..., None], axis=2)[..., 0]
+    side = rng.integers(-1, 2, (N, M))
+    below, above = np.maximum(np.nextafter(rho2, -np.inf), 0.0), np.nextafter(rho2, np.inf)
+    rho2 = np.where(side < 0, below, np.where(side > 0, above, rho2))
+    tree.rho2 = np.where(tree.query, rho2, 0.0)
+    tree.radius = np.sqrt(tree.rho2)
+
+
+@settings(max_examples=examples(40), deadline=None)
 @given(
     seed=st.integers(0, 2**32 - 1),
     log_r=st.floats(np.log(1e-3), np.log(0.1)),
     prior=st.sampled_from(["uniform", "dirichlet"]),
     grid=st.booleans(),
+    on_radii=st.booleans(),
     fraction=st.floats(0.0, 1.5),
 )
 def test_the_count_inside_bounds_the_candidates_and_keeps_the_verdict(
-    seed: int, log_r: float, prior: str, grid: bool, fraction: float
+    seed: int, log_r: float, prior: str, grid: bool, on_radii: bool, fraction: float
 ) -> None:
-    """Property: the trees' count of points well inside the discs never exceeds the candidates (it
-    misses only points within the rounding room of a radius), and the estimate of a few locales, which
-    uses it to settle "too many" early, gives every limit the exact count's verdict. On a grid of
-    coordinates many points are at equal distances from a locale."""
+    """Property: the trees' count of points well inside the discs never exceeds the candidates the
+    search finds, also with path points exactly on the radii (where the trees' rounding and the
+    search's differ); and the estimate of a few locales, which uses that count to settle "too many"
+    early, gives the exact count's verdict at every limit, those next to either count included. On
+    a grid of coordinates many points are at equal distances from a locale."""
     from pmht_opt import candidates
     from pmht_opt.candidates import TreeCandidates
     from pmht_opt.likelihood import EStepInputs
@@ -311,17 +329,31 @@ def test_the_count_inside_bounds_the_candidates_and_keeps_the_verdict(
     inputs = EStepInputs(z, pos, lt, lk, r)
     margin = gate_margin("auto", pos.shape[1], pos.shape[0])
     assert margin is not None
-    tree = TreeCandidates(inputs, margin)
-    exact = len(_brute_candidates(z, pos, tree.query, tree.rho2))
-    inside = tree.inside_count()
+
+    def tree() -> TreeCandidates:
+        t = TreeCandidates(inputs, margin)
+        if on_radii:
+            _radii_on_points(t, seed)
+        return t
+
+    reference = tree()
+    exact = len(_brute_candidates(z, pos, reference.query, reference.rho2))
+    assert sum(reference.block(lo, hi)[2].size for lo, hi in reference.spans()) == exact  # the search
+    inside = reference.inside_count()
     assert inside <= exact
-    assert inside >= exact - max(3, exact // 1000)
-    limit = fraction * exact
-    estimate = TreeCandidates(inputs, margin).estimate(limit)
-    assert (estimate > limit) == (exact > limit)
-    event(
-        "settled by the count inside" if tree._plan().upper > candidates._TRY_INSIDE * limit else "searched"
-    )
+    if not on_radii:  # a tight bound: only points within the rounding room of a radius are missed
+        assert inside >= exact - max(3, exact // 1000)
+    limits = {0.0, inside - 1.0, float(inside), inside + 1.0, exact - 1.0, float(exact), fraction * exact}
+    old = candidates._TRY_INSIDE
+    try:
+        # As the gate runs, and with the count inside always tried first (so that every limit takes
+        # the early path, also where the count inside and the exact one differ).
+        for candidates._TRY_INSIDE in (old, 0.0):
+            for limit in limits:
+                assert (tree().estimate(limit) > limit) == (exact > limit), (limit, candidates._TRY_INSIDE)
+    finally:
+        candidates._TRY_INSIDE = old
+    event("inside < exact" if inside < exact else "inside == exact")
 
 
 @pytest.mark.parametrize("prior", ["uniform", "dirichlet", "windows"])
@@ -430,10 +462,13 @@ def test_the_objective_alone_follows_a_gate_given_up_midway(monkeypatch: Any) ->
 
 def test_gated_weights_are_joined_on_first_read_only() -> None:
     """A gated E-step keeps its weights as the blocks' pieces until they are read: the EM loop's own
-    reads (``gated``, ``n_times``, the sums) join nothing; the first read of ``weights`` gives the CSR
-    matrix of the pieces, the same on every read, also through copies and pickles."""
+    reads (``gated``, ``n_times``, the sums) and the rows recomputed from the inputs join nothing; the
+    first read of ``weights`` gives the CSR matrix, whose rows have the maxima and sums computed block
+    by block on the way, the same matrix on every read, from two threads at once, through copies and
+    pickles."""
     import dataclasses
     import pickle
+    import threading
 
     from pmht_opt import candidates
     from pmht_opt.gating import SparseParts
@@ -448,15 +483,32 @@ def test_gated_weights_are_joined_on_first_read_only() -> None:
     parts = es.__dict__["_weights"]
     assert isinstance(parts, SparseParts) and len(parts.values) > 1
     assert es.gated and es.n_times == pos.shape[1] and es.log_likelihood == np.sum(es.log_normaliser)
+    rows = es.locales_weights(3, 7)
+    assert es.locale_weights(5).shape == (es.n_times, es.n_platforms) and es.weights_ntm().shape[0] == len(z)
     assert es.__dict__["_weights"] is parts  # nothing above joined the pieces
-    expected = sp.csr_matrix(
-        (np.concatenate(parts.values), np.concatenate(parts.columns), parts.indptr), shape=parts.shape
-    )
+    read: list[Any] = []
+    barrier = threading.Barrier(2)
+
+    def reader() -> None:
+        barrier.wait()
+        read.append(es.weights)
+
+    threads = [threading.Thread(target=reader) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
     first = es.weights
-    assert isinstance(first, sp.csr_matrix) and es.weights is first  # joined once
-    for name in ("data", "indices", "indptr"):
-        np.testing.assert_array_equal(getattr(first, name), getattr(expected, name))
+    assert isinstance(first, sp.csr_matrix) and all(w is first for w in read)  # joined once
+    assert first.shape == (len(z), es.n_times * es.n_platforms)
+    np.testing.assert_array_equal(np.maximum.reduceat(first.data, first.indptr[:-1]), es.largest)
+    spans = list(itertools.pairwise(first.indptr))
+    best = [first.indices[a:b][first.data[a:b] == first.data[a:b].max()].min() for a, b in spans]
+    np.testing.assert_array_equal(best, es.best_column)
     np.testing.assert_allclose(first.sum(axis=0).A1.reshape(es.W.shape), es.W, rtol=1e-12)
+    np.testing.assert_allclose(first.sum(axis=1).A1, 1.0, rtol=1e-12)  # each locale's weights sum to one
+    # The rows recomputed from the inputs (dropped triples included) are the joined rows to rounding.
+    np.testing.assert_allclose(first[3:7].toarray().reshape(rows.shape), rows, rtol=1e-12, atol=1e-15)
     again = estep(z, pos, lt, lk, r, gate="auto")
     for copy in (pickle.loads(pickle.dumps(again)), dataclasses.replace(again, largest=None)):
         assert copy.gated
