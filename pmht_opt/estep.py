@@ -57,6 +57,14 @@ class _JoinedOnRead:
     def __set__(self, obj: object, value: np.ndarray | sp.csr_matrix | SparseParts) -> None:
         obj.__dict__[self.slot] = value
 
+    def sparse(self, obj: object) -> bool:
+        """Whether ``obj``'s value is sparse, without joining pieces."""
+        value = obj.__dict__[self.slot]
+        return isinstance(value, SparseParts) or sp.issparse(value)
+
+
+_WEIGHTS = _JoinedOnRead()
+
 
 @dataclass(kw_only=True)
 class EStepResult:
@@ -80,7 +88,7 @@ class EStepResult:
         objective.
     """
 
-    weights: _JoinedOnRead = _JoinedOnRead()
+    weights: _JoinedOnRead = _WEIGHTS
     W: np.ndarray
     WZ: np.ndarray
     log_normaliser: np.ndarray
@@ -96,8 +104,7 @@ class EStepResult:
     @property
     def gated(self) -> bool:
         """Whether the weights are sparse (a gated E-step)."""
-        raw = self.__dict__["_weights"]  # without joining SparseParts
-        return isinstance(raw, SparseParts) or sp.issparse(raw)
+        return _WEIGHTS.sparse(self)
 
     @property
     def n_times(self) -> int:

@@ -34,10 +34,12 @@ class _StoppedError(Exception):
     """Raised inside work that :func:`concurrent` no longer wants (its ``with`` body was left)."""
 
 
-def thread_count(threads: Any) -> int:
-    """``threads`` as a positive ``int``; :class:`~pmht_opt.exceptions.ConfigError` naming it otherwise."""
+def thread_count(threads: Any, *, or_none: bool = False) -> int:
+    """``threads`` as a positive ``int``; :class:`~pmht_opt.exceptions.ConfigError` naming it otherwise
+    (``or_none``: the caller also takes ``None``, and the message says so)."""
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
-        raise ConfigError(f"threads: expected a positive integer, got {threads!r}.")
+        also = " or None" if or_none else ""
+        raise ConfigError(f"threads: expected a positive integer{also}, got {threads!r}.")
     return int(threads)
 
 

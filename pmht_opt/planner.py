@@ -163,7 +163,7 @@ class PMHTConfig:
 
 def _threads(threads: Any) -> int | None:
     """``threads`` as an ``int``, or ``None`` (one per core); :class:`ConfigError` unless positive."""
-    return None if threads is None else thread_count(threads)
+    return None if threads is None else thread_count(threads, or_none=True)
 
 
 def _with_implied(constraints: Any) -> tuple[Constraint, ...]:
