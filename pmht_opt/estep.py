@@ -78,7 +78,7 @@ class EStepResult:
         (:attr:`gated`), a ``scipy.sparse.csr_matrix`` of the same shape and layout whose missing
         entries are weights below ``exp(-gate)`` of their row's largest (zero). The methods below
         handle both; :meth:`weights_ntm` gives a dense ``(N, T, M)`` array. A gated E-step may
-        give it as :class:`SparseParts`, joined when first read.
+        give it as the blocks' pieces (:class:`pmht_opt.gating.SparseParts`), joined when first read.
     W
         ``(T, M)``, ``sum_n w[n, t, m]``: the weight of the synthetic measurement.
     WZ
@@ -405,7 +405,6 @@ __all__ = [
     "EStepInputs",
     "EStepResult",
     "EStepSummary",
-    "SparseParts",
     "estep",
     "gate_margin",
     "log_likelihood",
