@@ -19,6 +19,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
+from pmht_opt import kernels
 from pmht_opt.likelihood import _UNDERFLOW, EStepInputs, squared_distance
 
 #: Extra nats on the candidate radius so that rounding in the bound can never lose a kept triple.
@@ -97,6 +98,7 @@ class TreeCandidates:
         M = positions.shape[0]
         N = z.shape[0]
         self.z = z
+        self.zx, self.zy = np.ascontiguousarray(z[:, 0]), np.ascontiguousarray(z[:, 1])
         self.positions = positions
         self.trees = [cKDTree(positions[m], balanced_tree=False, compact_nodes=False) for m in range(M)]
         inv2r = 0.5 / r
@@ -303,6 +305,21 @@ class TreeCandidates:
         meets, measured directly."""
         z = self.z
         p0, p1 = int(plan.pair_start[lo]), int(plan.pair_start[hi])
+        loops = kernels.compiled(z.shape[0] * self.positions.shape[1] * self.positions.shape[0])
+        if loops is not None:  # the same points, distances and order in one compiled pass
+            row, t, plat, d2 = loops.search(
+                plan.hits,
+                p0,
+                p1,
+                plan.pair_n,
+                plan.pair_m,
+                plan.rho2,
+                plan.points,
+                plan.times,
+                self.zx,
+                self.zy,
+            )
+            return lo, hi, row, t, plat, d2
         ph, kh = np.nonzero(plan.hits[p0:p1])
         ph += p0
         n, m = plan.pair_n[ph], plan.pair_m[ph]

@@ -20,11 +20,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator
-from typing import NamedTuple, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 import scipy.sparse as sp
 
+from pmht_opt import kernels
 from pmht_opt.candidates import Block, SupportCandidates, TreeCandidates
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.likelihood import (
@@ -189,6 +190,9 @@ def _gate(inputs: EStepInputs, candidates: Block, const: float, margin: float) -
     count = row.size
     if d2 is None:
         d2 = _squared_distances(z, positions, row, t, plat)
+    loops = kernels.compiled(z.shape[0] * positions.shape[1] * M)
+    if loops is not None:
+        return _gate_compiled(loops, inputs, (lo, hi, row, t, plat, d2), const, margin)
     # The candidates' log weights, with the dense E-step's arithmetic (bit for bit the same).
     a = log_weights_from_d2(d2, r, const)
     if log_tau is not None:
@@ -207,6 +211,38 @@ def _gate(inputs: EStepInputs, candidates: Block, const: float, margin: float) -
     s = np.bincount(local, weights=a, minlength=hi - lo)
     a *= (1.0 / s)[local]
     return count, (lo, hi, local, t, plat, a, best + np.log(s))
+
+
+def _gate_compiled(
+    loops: Any, inputs: EStepInputs, candidates: Block, const: float, margin: float
+) -> tuple[int, _Block | None]:
+    """:func:`_gate` by the compiled loops (:mod:`pmht_opt.kernels`): the same numbers in two passes
+    and numpy's ``exp`` and ``log``."""
+    log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
+    lo, hi, row, t, plat, d2 = candidates
+    assert d2 is not None
+    none = np.empty((0, 0))
+    kept, best = loops.gate(
+        d2,
+        row,
+        t,
+        plat,
+        lo,
+        hi,
+        inputs.positions.shape[0],
+        -0.5 / inputs.r,
+        const,
+        none if log_tau is None else log_tau,
+        none if log_k is None else log_k,
+        margin,
+        _UNDERFLOW,
+    )
+    if kept < 0:
+        return row.size, None
+    a = np.exp(d2[:kept])  # a new array: the weights are kept, the candidates' arrays are not
+    local, t, plat = row[:kept], t[:kept], plat[:kept]
+    s = loops.normalise(a, local, hi - lo)
+    return row.size, (lo, hi, local, t, plat, a, best + np.log(s))
 
 
 def _squared_distances(
@@ -282,6 +318,8 @@ class _Accumulator:
         TM = T * M
         self.W = np.zeros(TM)
         self.WZ = np.zeros((2, TM))
+        #: The compiled loops' sums, ``(T M, 3)``: ``W`` and ``WZ`` of a column side by side.
+        self.sums: np.ndarray | None = None
         self.lse = np.empty(N)
         self.platform = np.empty((N, M))
         self.best_column = np.empty(N, dtype=np.intp)
@@ -300,6 +338,9 @@ class _Accumulator:
         totals, entry counts and largest weights."""
         lo, hi, local, t, plat, w, lse = block
         M, n = self.M, hi - lo
+        loops = kernels.compiled(self.N * self.T * M)
+        if loops is not None:
+            return self._prepare_compiled(loops, block)
         col = (t * M + plat).astype(self.column_dtype)
         wz = (w * self.zx[lo:hi][local], w * self.zy[lo:hi][local])
         platform = np.bincount(local * M + plat, weights=w, minlength=n * M).reshape(n, M)
@@ -309,13 +350,33 @@ class _Accumulator:
         largest, best_column = row_maxima(w, col, local, starts, self.T * M)
         return _Prepared(lo, hi, col, w, wz, lse, platform, counts, largest, best_column)
 
+    def _prepare_compiled(self, loops: Any, block: _Block) -> _Prepared:
+        """:meth:`prepare` by the compiled loop (:mod:`pmht_opt.kernels`): the same numbers, one pass."""
+        lo, hi, local, t, plat, w, lse = block
+        M, n = self.M, hi - lo
+        col = np.empty(w.size, dtype=self.column_dtype)
+        wzx, wzy = np.empty(w.size), np.empty(w.size)
+        platform = np.empty((n, M))
+        counts = np.empty(n, dtype=np.intp)
+        largest = np.empty(n)
+        best_column = np.empty(n, dtype=np.intp)
+        zx, zy = self.zx[lo:hi], self.zy[lo:hi]
+        loops.prepare(w, local, t, plat, zx, zy, M, n, col, wzx, wzy, platform, counts, largest, best_column)
+        return _Prepared(lo, hi, col, w, (wzx, wzy), lse, platform, counts, largest, best_column)
+
     def add(self, block: _Prepared) -> None:
         """A prepared block, in order: the sums over all triples are formed here, by ``np.add.at`` in
         the order of the triples."""
         lo, hi, col, w = block.lo, block.hi, block.col, block.w
-        np.add.at(self.W, col, w)
-        np.add.at(self.WZ[0], col, block.wz[0])
-        np.add.at(self.WZ[1], col, block.wz[1])
+        loops = kernels.compiled(self.N * self.T * self.M)
+        if loops is not None:
+            if self.sums is None:
+                self.sums = np.zeros((self.T * self.M, 3))
+            loops.accumulate(self.sums, col, w, block.wz[0], block.wz[1])
+        else:
+            np.add.at(self.W, col, w)
+            np.add.at(self.WZ[0], col, block.wz[0])
+            np.add.at(self.WZ[1], col, block.wz[1])
         self.lse[lo:hi] = block.lse
         self.platform[lo:hi] = block.platform
         self.largest[lo:hi], self.best_column[lo:hi] = block.largest, block.best_column
@@ -327,6 +388,9 @@ class _Accumulator:
         """The weights (CSR with the dense layout, joined when first read) and everything computed
         with them."""
         N, T, M = self.N, self.T, self.M
+        if self.sums is not None:
+            self.W[:] = self.sums[:, 0]
+            self.WZ[:] = self.sums[:, 1:].T
         np.cumsum(self.indptr, out=self.indptr)
         weights = SparseParts(self.values, self.cols, self.indptr, (N, T * M))
         return GatedWeights(
