@@ -24,6 +24,7 @@ PACKAGES = (
     "cvxpy",
     "osqp",
     "clarabel",
+    "numba",
     "scs",
     "highspy",
     "ortools",
@@ -65,7 +66,9 @@ def load_average() -> float | None:
 
 
 def provenance() -> dict[str, Any]:
-    """Commit, dirty flag, package versions, Python, machine, CPU count, load average, date and command.
+    """Commit, dirty flag, package versions, Python, machine, CPU count, load average, date, command and
+    the switch of the E-step's compiled loops (``PMHT_OPT_KERNELS``, ``None`` if unset: they run from
+    :data:`pmht_opt.kernels.MIN_TRIPLES` triples on where numba is installed; the numbers are the same).
 
     ``commit`` and ``dirty`` are ``None`` outside a git checkout (an installed copy of the studies).
     """
@@ -83,4 +86,5 @@ def provenance() -> dict[str, Any]:
         "load_average": load_average(),
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv and sys.argv[0] else "",
+        "kernels": os.environ.get("PMHT_OPT_KERNELS"),
     }
