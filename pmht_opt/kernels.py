@@ -39,7 +39,7 @@ from pmht_opt.exceptions import ConfigError
 #: loops at every size, ``auto`` (or unset) the compiled loops for E-steps of at least
 #: :data:`MIN_TRIPLES` triples.
 ENV_SWITCH = "PMHT_OPT_KERNELS"
-#: Importing numba and loading the cached loops costs about 0.3 s, once per process (about 2 s the
+#: Importing numba and loading the cached loops costs about 0.3-0.6 s, once per process (about 2 s the
 #: first time, when they are compiled): more than the loops save on a plan of the paper's size
 #: (``N T M = 2e5``, about 0.2 ms per E-step), far less than at ``N T M = 5e8`` (about 0.4 s per
 #: E-step). Smaller E-steps run the numpy passes, with the same numbers.
