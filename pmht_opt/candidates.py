@@ -14,12 +14,11 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Iterator
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pmht_opt import kernels
 from pmht_opt.likelihood import _UNDERFLOW, EStepInputs, squared_distance
 
 #: Extra nats on the candidate radius so that rounding in the bound can never lose a kept triple.
@@ -90,14 +89,20 @@ class TreeCandidates:
     scale
         The largest coordinate of the locales and paths (computed here if not given), which sets the
         rounding slack of the chunks' discs.
+    loops
+        The compiled loops of :mod:`pmht_opt.kernels` for the search, or ``None`` for numpy's passes
+        (the same candidates in the same order).
     """
 
-    def __init__(self, inputs: EStepInputs, margin: float, scale: float | None = None) -> None:
+    def __init__(
+        self, inputs: EStepInputs, margin: float, scale: float | None = None, loops: Any = None
+    ) -> None:
         z, positions, r = inputs.locales, inputs.positions, inputs.r
         log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
         M = positions.shape[0]
         N = z.shape[0]
         self.z = z
+        self.loops = loops
         self.zx, self.zy = np.ascontiguousarray(z[:, 0]), np.ascontiguousarray(z[:, 1])
         self.positions = positions
         self.trees = [cKDTree(positions[m], balanced_tree=False, compact_nodes=False) for m in range(M)]
@@ -305,9 +310,8 @@ class TreeCandidates:
         meets, measured directly."""
         z = self.z
         p0, p1 = int(plan.pair_start[lo]), int(plan.pair_start[hi])
-        loops = kernels.compiled(z.shape[0] * self.positions.shape[1] * self.positions.shape[0])
-        if loops is not None:  # the same points, distances and order in one compiled pass
-            row, t, plat, d2 = loops.search(
+        if self.loops is not None:  # the same points, distances and order in one compiled pass
+            row, t, plat, d2 = self.loops.search(
                 plan.hits,
                 p0,
                 p1,

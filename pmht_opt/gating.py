@@ -122,8 +122,9 @@ def estep_gated(inputs: EStepInputs, margin: float, threads: int = 1) -> GatedWe
     of a block's size; only the weights and their columns, which the CSR matrix keeps, grow with
     the number of triples.
     """
-    out = _Accumulator(inputs.locales, *_sizes(inputs))
-    for block in _gated_blocks(inputs, margin, threads, out.prepare):
+    loops = _loops(inputs)
+    out = _Accumulator(inputs.locales, *_sizes(inputs), loops)
+    for block in _gated_blocks(inputs, margin, threads, out.prepare, loops):
         if block is None:
             return None
         out.add(block)
@@ -134,11 +135,18 @@ def gated_log_normalisers(inputs: EStepInputs, margin: float, threads: int = 1) 
     """The log-normalisers of :func:`estep_gated` alone (bit for bit), without keeping its weights;
     ``None`` where it would give way to the dense E-step."""
     lse = np.empty(inputs.locales.shape[0])
-    for block in _gated_blocks(inputs, margin, threads, lambda b: (b[0], b[1], b[-1])):
+    for block in _gated_blocks(inputs, margin, threads, lambda b: (b[0], b[1], b[-1]), _loops(inputs)):
         if block is None:
             return None
         lo, hi, lse[lo:hi] = block
     return lse
+
+
+def _loops(inputs: EStepInputs) -> Any:
+    """The compiled loops for this E-step, or ``None`` for the numpy passes: decided once per E-step,
+    so that every block of it is computed, and summed, the same way."""
+    N, T, M = _sizes(inputs)
+    return kernels.compiled(N * T * M)
 
 
 def _sizes(inputs: EStepInputs) -> tuple[int, int, int]:
@@ -152,14 +160,14 @@ B = TypeVar("B")
 
 
 def _gated_blocks(
-    inputs: EStepInputs, margin: float, threads: int, finish: Callable[[_Block], B]
+    inputs: EStepInputs, margin: float, threads: int, finish: Callable[[_Block], B], loops: Any
 ) -> Iterator[B | None]:
     """The gated E-step a block of locales at a time: ``finish`` of ``(lo, hi, local rows, times,
     platforms, normalised weights, log-normalisers of rows lo .. hi - 1)`` for the kept triples, in
     order; a ``None`` (and nothing after it) where the dense E-step should run instead. With
     ``threads > 1`` the blocks, ``finish`` included, are worked on concurrently and taken in order
     (:func:`pmht_opt.parallel.ordered_map`): the same blocks, arithmetic and decisions."""
-    source = _choose_source(inputs, margin)
+    source = _choose_source(inputs, margin, loops)
     if source is None:
         yield None
         return
@@ -168,7 +176,7 @@ def _gated_blocks(
     const = log_const(inputs.r, T, M, inputs.log_time_prior is None, inputs.log_platform_prior is None)
 
     def work(lo: int, hi: int) -> tuple[int, B | None]:
-        count, block = _gate(inputs, source.block(lo, hi), const, margin)
+        count, block = _gate(inputs, source.block(lo, hi), const, margin, loops)
         return count, None if block is None else finish(block)
 
     total = 0
@@ -180,9 +188,11 @@ def _gated_blocks(
         yield done
 
 
-def _gate(inputs: EStepInputs, candidates: Block, const: float, margin: float) -> tuple[int, _Block | None]:
+def _gate(
+    inputs: EStepInputs, candidates: Block, const: float, margin: float, loops: Any = None
+) -> tuple[int, _Block | None]:
     """One block's candidates gated and normalised: ``(number of candidates, the block)``, the block
-    ``None`` if some locale of it has no finite candidate."""
+    ``None`` if some locale of it has no finite candidate; by the compiled ``loops`` if given."""
     z, positions, r = inputs.locales, inputs.positions, inputs.r
     log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
     M = positions.shape[0]
@@ -190,7 +200,6 @@ def _gate(inputs: EStepInputs, candidates: Block, const: float, margin: float) -
     count = row.size
     if d2 is None:
         d2 = _squared_distances(z, positions, row, t, plat)
-    loops = kernels.compiled(z.shape[0] * positions.shape[1] * M)
     if loops is not None:
         return _gate_compiled(loops, inputs, (lo, hi, row, t, plat, d2), const, margin)
     # The candidates' log weights, with the dense E-step's arithmetic (bit for bit the same).
@@ -311,8 +320,10 @@ class _Accumulator:
     triples is allocated but the weights and their columns, which the CSR matrix keeps.
     """
 
-    def __init__(self, z: np.ndarray, N: int, T: int, M: int) -> None:
+    def __init__(self, z: np.ndarray, N: int, T: int, M: int, loops: Any = None) -> None:
         self.N, self.T, self.M = N, T, M
+        #: The compiled loops (:mod:`pmht_opt.kernels`) that prepare and add every block, or ``None``.
+        self.loops = loops
         # The locales' coordinates as two contiguous arrays: a block gathers from them twice.
         self.zx, self.zy = np.ascontiguousarray(z[:, 0]), np.ascontiguousarray(z[:, 1])
         TM = T * M
@@ -338,9 +349,8 @@ class _Accumulator:
         totals, entry counts and largest weights."""
         lo, hi, local, t, plat, w, lse = block
         M, n = self.M, hi - lo
-        loops = kernels.compiled(self.N * self.T * M)
-        if loops is not None:
-            return self._prepare_compiled(loops, block)
+        if self.loops is not None:
+            return self._prepare_compiled(self.loops, block)
         col = (t * M + plat).astype(self.column_dtype)
         wz = (w * self.zx[lo:hi][local], w * self.zy[lo:hi][local])
         platform = np.bincount(local * M + plat, weights=w, minlength=n * M).reshape(n, M)
@@ -368,11 +378,10 @@ class _Accumulator:
         """A prepared block, in order: the sums over all triples are formed here, by ``np.add.at`` in
         the order of the triples."""
         lo, hi, col, w = block.lo, block.hi, block.col, block.w
-        loops = kernels.compiled(self.N * self.T * self.M)
-        if loops is not None:
+        if self.loops is not None:
             if self.sums is None:
                 self.sums = np.zeros((self.T * self.M, 3))
-            loops.accumulate(self.sums, col, w, block.wz[0], block.wz[1])
+            self.loops.accumulate(self.sums, col, w, block.wz[0], block.wz[1])
         else:
             np.add.at(self.W, col, w)
             np.add.at(self.WZ[0], col, block.wz[0])
@@ -405,7 +414,9 @@ class _Accumulator:
         )
 
 
-def _choose_source(inputs: EStepInputs, margin: float) -> TreeCandidates | SupportCandidates | None:
+def _choose_source(
+    inputs: EStepInputs, margin: float, loops: Any = None
+) -> TreeCandidates | SupportCandidates | None:
     """Where the candidates come from, or ``None`` where the gate would keep too many to pay.
 
     Candidates come from whichever is smaller: the points within the pairs' radii, or the support of
@@ -433,7 +444,7 @@ def _choose_source(inputs: EStepInputs, margin: float) -> TreeCandidates | Suppo
     n_times = np.isfinite(log_tau).sum(axis=1) if log_tau is not None else np.full(N, T)
     n_plats = np.isfinite(log_k).sum(axis=1) if log_k is not None else np.full(N, M)
     support = float(np.sum(n_times * n_plats))
-    tree = TreeCandidates(inputs, margin, scale)
+    tree = TreeCandidates(inputs, margin, scale, loops)
     estimate = tree.estimate(limit=budget)
     if min(support, estimate) > budget:
         return None

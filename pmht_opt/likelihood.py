@@ -82,6 +82,16 @@ class EStepInputs:
     log_platform_prior: np.ndarray | None
     r: float
 
+    def __post_init__(self) -> None:
+        # Native float64 throughout (no copy where they already are): every path of the E-step, numpy
+        # or compiled, then computes in the same precision from the same values.
+        self.locales = np.asarray(self.locales, dtype=np.float64)
+        self.positions = np.asarray(self.positions, dtype=np.float64)
+        if self.log_time_prior is not None:
+            self.log_time_prior = np.asarray(self.log_time_prior, dtype=np.float64)
+        if self.log_platform_prior is not None:
+            self.log_platform_prior = np.asarray(self.log_platform_prior, dtype=np.float64)
+
     def rows(self, lo: int, hi: int) -> np.ndarray:
         """``w[lo:hi]`` as ``(hi - lo, T*M)``, computed as the dense E-step computes it (bit for bit)."""
         M, T, _ = self.positions.shape

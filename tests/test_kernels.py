@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from types import SimpleNamespace
 from typing import Any
@@ -15,8 +16,9 @@ from hypothesis import strategies as st
 from test_gating import _case
 
 import pmht_opt as po
-from pmht_opt import kernels
-from pmht_opt.estep import EStepResult, estep, log_likelihood
+from pmht_opt import candidates, gating, kernels
+from pmht_opt.estep import EStepResult, estep, gate_margin, log_likelihood
+from pmht_opt.likelihood import EStepInputs
 
 needs_numba = pytest.mark.skipif(not kernels.available(), reason="numba is not installed")
 
@@ -185,3 +187,70 @@ def test_the_switch(monkeypatch: Any) -> None:
     monkeypatch.setenv(kernels.ENV_SWITCH, "yes")
     with pytest.raises(po.ConfigError, match=kernels.ENV_SWITCH):
         kernels.compiled(big)
+
+
+@needs_numba
+@pytest.mark.parametrize("r, gate", [(0.25, 1.0), (0.25, 2.0), (0.125, 4.0)])
+def test_weights_exactly_on_the_gate_are_kept_alike(r: float, gate: float, monkeypatch: Any) -> None:
+    """On a lattice with ``r = 2^-k`` and an integer margin, log weights fall exactly on a pair's
+    threshold: both keep them (``>=``)."""
+    for seed in range(4):
+        z, pos = _lattice(seed)
+        plain, fast = _both(monkeypatch, z, pos, None, None, r, gate=gate)
+        assert plain.gated
+        _assert_identical(plain, fast)
+
+
+@needs_numba
+@pytest.mark.parametrize("prior", ["uniform", "dirichlet", "windows"])
+def test_many_blocks_on_threads_give_the_numpy_bits(prior: str, monkeypatch: Any) -> None:
+    """Blocks of a few locales (so sums run across blocks, rows are offset by the block's first
+    locale, and two threads work ahead of the ordered sums) give the same bits."""
+    monkeypatch.setattr(candidates, "_BLOCK", 1 << 10)
+    z, pos, lt, lk, r = _case(4, prior, 0.002)
+    inputs = EStepInputs(z, pos, lt, lk, r)
+    source = gating._choose_source(inputs, gate_margin("auto", pos.shape[1], pos.shape[0]))
+    assert source is not None and len(source.spans()) > 5
+    plain, fast = _both(monkeypatch, z, pos, lt, lk, r, gate="auto", threads=2)
+    assert plain.gated
+    _assert_identical(plain, fast)
+
+
+@needs_numba
+def test_inputs_of_other_float_types_give_the_float64_bits(monkeypatch: Any) -> None:
+    """Big-endian, single-precision or long-double inputs are taken as native float64 by either path."""
+    z, pos, lt, lk, r = _case(4, "dirichlet", 0.002)
+    reference, _ = _both(monkeypatch, z, pos, lt, lk, r, gate="auto")
+    for dtype in (">f8", np.longdouble):
+        plain, fast = _both(
+            monkeypatch,
+            z.astype(dtype),
+            pos.astype(dtype),
+            lt.astype(dtype),
+            lk.astype(dtype),
+            r,
+            gate="auto",
+        )
+        _assert_identical(plain, fast)
+        _assert_identical(plain, reference)
+    single, fast = _both(monkeypatch, z, pos, lt.astype(np.float32), lk.astype(np.float16), r, gate="auto")
+    _assert_identical(single, fast)
+
+
+@needs_numba
+def test_the_switch_is_read_once_per_estep(monkeypatch: Any) -> None:
+    """Flipping the switch while an E-step runs changes nothing of that E-step: every block of it is
+    computed and summed one way."""
+    monkeypatch.setattr(candidates, "_BLOCK", 1 << 10)
+    z, pos, lt, lk, r = _case(4, "uniform", 0.002)
+    reference, _ = _both(monkeypatch, z, pos, lt, lk, r, gate="auto")
+    add = gating._Accumulator.add
+
+    def flipping(self: Any, block: Any) -> None:
+        add(self, block)
+        os.environ[kernels.ENV_SWITCH] = "0" if os.environ[kernels.ENV_SWITCH] == "1" else "1"
+
+    monkeypatch.setattr(gating._Accumulator, "add", flipping)
+    for start in ("0", "1"):
+        monkeypatch.setenv(kernels.ENV_SWITCH, start)
+        _assert_identical(estep(z, pos, lt, lk, r, gate="auto"), reference)
