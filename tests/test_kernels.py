@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 from types import SimpleNamespace
 from typing import Any
@@ -254,3 +255,23 @@ def test_the_switch_is_read_once_per_estep(monkeypatch: Any) -> None:
     for start in ("0", "1"):
         monkeypatch.setenv(kernels.ENV_SWITCH, start)
         _assert_identical(estep(z, pos, lt, lk, r, gate="auto"), reference)
+
+
+def test_numba_is_imported_only_for_large_esteps() -> None:
+    """``import pmht_opt`` and a plan of the paper's size leave numba unimported (its import costs more
+    than the loops would save there); the switch ``1`` imports it for the same plan."""
+    code = (
+        "import pmht_opt as po; po.plan_pmht(po.paper_scenario('A', seed=0, horizon=100), "
+        "po.PMHTConfig(max_iter=60))"
+    )
+    for env, expected in (("auto", False), ("1", kernels.available())):
+        done = subprocess.run(
+            [sys.executable, "-X", "importtime", "-c", code],
+            capture_output=True,
+            text=True,
+            check=True,
+            env={**os.environ, kernels.ENV_SWITCH: env},
+        )
+        names = {line.rsplit("|", 1)[1].strip() for line in done.stderr.splitlines() if "|" in line}
+        assert "pmht_opt" in names
+        assert ("numba" in names) == expected, env
