@@ -18,14 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from pmht_opt.gating import (
-    GATE_MAX_FRACTION,
-    SparseParts,
-    estep_gated,
-    gate_margin,
-    gated_log_normalisers,
-    row_maxima,
-)
+from pmht_opt.gated_sums import SparseParts, row_maxima
+from pmht_opt.gating import GATE_MAX_FRACTION, estep_gated, gate_margin, gated_log_normalisers
 from pmht_opt.likelihood import EStepInputs
 from pmht_opt.parallel import thread_count
 
@@ -78,7 +72,7 @@ class EStepResult:
         (:attr:`gated`), a ``scipy.sparse.csr_matrix`` of the same shape and layout whose missing
         entries are weights below ``exp(-gate)`` of their row's largest (zero). The methods below
         handle both; :meth:`weights_ntm` gives a dense ``(N, T, M)`` array. A gated E-step may
-        give it as the blocks' pieces (:class:`pmht_opt.gating.SparseParts`), joined when first read.
+        give it as the blocks' pieces (:class:`pmht_opt.gated_sums.SparseParts`), joined when first read.
     W
         ``(T, M)``, ``sum_n w[n, t, m]``: the weight of the synthetic measurement.
     WZ

@@ -471,7 +471,7 @@ def test_gated_weights_are_joined_on_first_read_only() -> None:
     import threading
 
     from pmht_opt import candidates
-    from pmht_opt.gating import SparseParts
+    from pmht_opt.gated_sums import SparseParts
 
     z, pos, lt, lk, r = _case(11, "uniform", 0.01)
     old = candidates._BLOCK

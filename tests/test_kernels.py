@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from test_gating import _case
 
 import pmht_opt as po
-from pmht_opt import candidates, gating, kernels
+from pmht_opt import candidates, gated_sums, gating, kernels
 from pmht_opt.estep import EStepResult, estep, gate_margin, log_likelihood
 from pmht_opt.likelihood import EStepInputs
 
@@ -245,13 +245,13 @@ def test_the_switch_is_read_once_per_estep(monkeypatch: Any) -> None:
     monkeypatch.setattr(candidates, "_BLOCK", 1 << 10)
     z, pos, lt, lk, r = _case(4, "uniform", 0.002)
     reference, _ = _both(monkeypatch, z, pos, lt, lk, r, gate="auto")
-    add = gating._Accumulator.add
+    add = gated_sums.GatedAccumulator.add
 
     def flipping(self: Any, block: Any) -> None:
         add(self, block)
         os.environ[kernels.ENV_SWITCH] = "0" if os.environ[kernels.ENV_SWITCH] == "1" else "1"
 
-    monkeypatch.setattr(gating._Accumulator, "add", flipping)
+    monkeypatch.setattr(gated_sums.GatedAccumulator, "add", flipping)
     for start in ("0", "1"):
         monkeypatch.setenv(kernels.ENV_SWITCH, start)
         _assert_identical(estep(z, pos, lt, lk, r, gate="auto"), reference)
