@@ -181,24 +181,15 @@ def _gate_compiled(
     log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
     lo, hi, row, t, plat, d2 = candidates
     assert d2 is not None
+    if row.size == 0:
+        return 0, None
     none = np.empty((0, 0))
-    kept, best = loops.gate(
-        d2,
-        row,
-        t,
-        plat,
-        lo,
-        hi,
-        inputs.positions.shape[0],
-        -0.5 / inputs.r,
-        const,
-        none if log_tau is None else log_tau,
-        none if log_k is None else log_k,
-        margin,
-        _UNDERFLOW,
-    )
-    if kept < 0:
+    lt = none if log_tau is None else log_tau
+    lk = none if log_k is None else log_k
+    pair_best, best = loops.maxima(d2, row, t, plat, lo, hi, -0.5 / inputs.r, const, lt, lk)
+    if not np.all(np.isfinite(best)):
         return row.size, None
+    kept = loops.keep(d2, row, t, plat, lo, pair_best, best, margin, _UNDERFLOW)
     a = np.exp(d2[:kept])  # a new array: the weights are kept, the candidates' arrays are not
     local, t, plat = row[:kept], t[:kept], plat[:kept]
     s = loops.normalise(a, local, hi - lo)

@@ -89,7 +89,8 @@ def _compile() -> SimpleNamespace | None:
         return None
     jit = numba.njit(cache=True, nogil=True, fastmath=False, boundscheck=False)
     return SimpleNamespace(
-        gate=jit(_gate),
+        maxima=jit(_maxima),
+        keep=jit(_keep),
         normalise=jit(_normalise),
         prepare=jit(_prepare),
         accumulate=jit(_accumulate),
@@ -101,38 +102,30 @@ def _compile() -> SimpleNamespace | None:
 # (slowly) as such: the tests run them uncompiled too, which checks the algorithm apart from numba.
 
 
-def _gate(
+def _maxima(
     d2: np.ndarray,
     row: np.ndarray,
     t: np.ndarray,
     plat: np.ndarray,
     lo: int,
     hi: int,
-    M: int,
     c1: float,
     const: float,
     log_tau: np.ndarray,
     log_k: np.ndarray,
-    margin: float,
-    underflow: float,
 ) -> Any:
-    """Log weights, gate and shift of one block, in place.
+    """The log weights of one block's candidates, in place, and their maxima.
 
-    ``d2`` becomes the log weights ``d2 * c1 - const (+ log_tau[row, t]) (+ log_k[row, plat])``; the
-    kept triples are moved to the front of ``d2``, ``row`` (made local: ``row - lo``), ``t`` and
-    ``plat``, with ``a - best[local]`` in ``d2``. Returns ``(kept, best)``, ``kept = -1`` if some
-    locale has no finite log weight. ``log_tau``/``log_k`` of shape ``(0, 0)`` mean "none".
+    ``d2`` becomes ``d2 * c1 - const (+ log_tau[row, t]) (+ log_k[row, plat])`` (``log_tau``/``log_k``
+    of shape ``(0, 0)`` mean "none"). Returns ``(pair_best, best)``: the largest log weight of each
+    (locale, platform) pair, a run of equal ``(row, plat)``, stored at the run's first entry, and of
+    each locale ``lo .. hi - 1`` (``-inf`` for a locale without candidates).
     """
     size = d2.size
-    n = hi - lo
-    best = np.full(n, -np.inf)
-    if size == 0:
-        return -1, best
+    best = np.full(hi - lo, -np.inf)
+    pair_best = np.empty(size)
     has_tau = log_tau.shape[0] > 0
     has_k = log_k.shape[0] > 0
-    # The log weights, the maximum of each pair (a run of equal (row, plat); kept at the run's start)
-    # and of each locale, in one pass.
-    pair_best = np.empty(size)
     i = 0
     while i < size:
         r, p = row[i], plat[i]
@@ -153,27 +146,42 @@ def _gate(
         if m > best[r - lo]:
             best[r - lo] = m
         i = j
-    for k in range(n):
-        if not np.isfinite(best[k]):
-            return -1, best
+    return pair_best, best
+
+
+def _keep(
+    a: np.ndarray,
+    row: np.ndarray,
+    t: np.ndarray,
+    plat: np.ndarray,
+    lo: int,
+    pair_best: np.ndarray,
+    best: np.ndarray,
+    margin: float,
+    underflow: float,
+) -> int:
+    """The gate on one block's log weights ``a`` (maxima from :func:`_maxima`), in place: a triple is
+    kept when ``a >= max(pair_best - margin, best - underflow)``; the kept ones are moved to the front
+    of ``a`` (as ``a - best``), ``row`` (made local, ``row - lo``), ``t`` and ``plat``. Returns how
+    many were kept."""
+    size = a.size
     kept = 0
     i = 0
     while i < size:
-        m = pair_best[i]
         j = i + 1
         while j < size and row[j] == row[i] and plat[j] == plat[i]:
             j += 1
         local = row[i] - lo
-        threshold = max(m - margin, best[local] - underflow)
+        threshold = max(pair_best[i] - margin, best[local] - underflow)
         for q in range(i, j):
-            if d2[q] >= threshold:
-                d2[kept] = d2[q] - best[local]
+            if a[q] >= threshold:
+                a[kept] = a[q] - best[local]
                 row[kept] = local
                 t[kept] = t[q]
                 plat[kept] = plat[q]
                 kept += 1
         i = j
-    return kept, best
+    return kept
 
 
 def _normalise(a: np.ndarray, local: np.ndarray, n: int) -> np.ndarray:

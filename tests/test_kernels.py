@@ -147,7 +147,8 @@ def test_the_loops_uncompiled_give_the_numpy_bits(monkeypatch: Any) -> None:
     monkeypatch.setenv(kernels.ENV_SWITCH, "0")
     plain = estep(z, pos, lt, lk, r, gate="auto")
     python = SimpleNamespace(
-        gate=kernels._gate,
+        maxima=kernels._maxima,
+        keep=kernels._keep,
         normalise=kernels._normalise,
         prepare=kernels._prepare,
         accumulate=kernels._accumulate,
