@@ -13,6 +13,7 @@ triples included, so consumers that rank tiny weights (the visit choice of
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,10 +28,27 @@ from pmht_opt.parallel import thread_count
 SUMMARY_FLOOR = 1e-12
 
 
+class DenseRows:
+    """The dense weights of an E-step, not kept but recomputed from its inputs when first read.
+
+    The EM loop needs of a dense E-step only ``W``, ``WZ``, the normalisers and the rows' statistics,
+    all formed block by block on the way; the ``N x T*M`` weights themselves (4 GB at N = 5000,
+    T = 5000, M = 20) are formed again, bit for bit (:meth:`EStepInputs.rows`), only if something reads
+    them.
+    """
+
+    def __init__(self, inputs: EStepInputs) -> None:
+        self.inputs = inputs
+
+    def join(self) -> np.ndarray:
+        """The ``(N, T*M)`` weights."""
+        return self.inputs.rows(0, self.inputs.locales.shape[0])
+
+
 class _JoinedOnRead:
-    """A dataclass field that may be given as :class:`SparseParts` and reads as their joined matrix,
-    joined once, on the first read (the pieces are then dropped; two threads reading at once wait
-    for one join)."""
+    """A dataclass field that may be given as :class:`SparseParts` or :class:`DenseRows` and reads as
+    the joined matrix or the recomputed array, formed once, on the first read (the pieces are then
+    dropped; two threads reading at once wait for one)."""
 
     _lock = threading.Lock()
 
@@ -41,20 +59,25 @@ class _JoinedOnRead:
         if obj is None:  # no default: the field is required
             raise AttributeError(self.slot[1:])
         value = obj.__dict__[self.slot]
-        if isinstance(value, SparseParts):
+        if isinstance(value, (SparseParts, DenseRows)):
             with self._lock:
                 value = obj.__dict__[self.slot]
-                if isinstance(value, SparseParts):
+                if isinstance(value, (SparseParts, DenseRows)):
                     value = obj.__dict__[self.slot] = value.join()
         return value
 
-    def __set__(self, obj: object, value: np.ndarray | sp.csr_matrix | SparseParts) -> None:
+    def __set__(self, obj: object, value: np.ndarray | sp.csr_matrix | SparseParts | DenseRows) -> None:
         obj.__dict__[self.slot] = value
 
     def sparse(self, obj: object) -> bool:
         """Whether ``obj``'s value is sparse, without joining pieces."""
         value = obj.__dict__[self.slot]
         return isinstance(value, SparseParts) or sp.issparse(value)
+
+    def unread(self, obj: object) -> DenseRows | None:
+        """``obj``'s dense weights not yet recomputed, else ``None``."""
+        value = obj.__dict__[self.slot]
+        return value if isinstance(value, DenseRows) else None
 
 
 _WEIGHTS = _JoinedOnRead()
@@ -87,13 +110,15 @@ class EStepResult:
     WZ: np.ndarray
     log_normaliser: np.ndarray
     n_platforms: int
-    #: The E-step's inputs, kept by a gated E-step to recompute rows exactly.
+    #: The E-step's inputs, kept to recompute rows exactly.
     inputs: EStepInputs | None = field(default=None, repr=False, compare=False)
-    #: Computed by a gated E-step on the way, so as not to pass over the sparse weights again:
+    #: Computed by the E-step on the way, so as not to pass over the weights again:
     #: ``sum_t w[n, t, m]`` ``(N, M)``, each row's column of largest weight and that weight.
     platform_totals: np.ndarray | None = field(default=None, repr=False, compare=False)
     best_column: np.ndarray | None = field(default=None, repr=False, compare=False)
     largest: np.ndarray | None = field(default=None, repr=False, compare=False)
+    #: ``sum_m w[n, t, m]`` ``(N, T)``, computed on the way by a dense E-step.
+    time_totals: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def gated(self) -> bool:
@@ -147,6 +172,8 @@ class EStepResult:
 
     def time_prior(self) -> np.ndarray:
         """Updated ``pi^tau[n, t] = sum_m w[n, t, m]`` (eq. 11), ``(N, T)``."""
+        if self.time_totals is not None:
+            return self.time_totals.copy()
         if self.gated:
             N, T, M = self.weights.shape[0], self.n_times, self.n_platforms
             rows, cols, vals = self._triples()
@@ -190,13 +217,23 @@ class EStepResult:
     def summary(self, floor: float = SUMMARY_FLOOR) -> EStepSummary:
         """This E-step without its dense arrays: weights at or above ``floor`` and the exact
         per-locale platform probabilities (:class:`EStepSummary`)."""
+        unread = _WEIGHTS.unread(self)
+        if unread is not None:  # the rows recomputed a block at a time, never all at once
+            csr = _dense_to_csr(unread.inputs.rows, self.log_normaliser.shape[0], self.W.size, floor)
+            return EStepSummary(
+                weights=csr,
+                platform_probability=self.platform_prior(),
+                log_normaliser=self.log_normaliser.copy(),
+                n_platforms=self.n_platforms,
+                floor=floor,
+            )
         w = self.weights
         if isinstance(w, sp.csr_matrix):
             csr = w.copy()
             csr.data[csr.data < floor] = 0.0
             csr.eliminate_zeros()
         else:
-            csr = _dense_to_csr(w, floor)
+            csr = _dense_to_csr(lambda lo, hi: w[lo:hi], w.shape[0], w.shape[1], floor)
         return EStepSummary(
             weights=csr,
             platform_probability=self.platform_prior(),
@@ -283,22 +320,22 @@ def log_likelihood(
     return float(np.sum(lse))
 
 
-def _dense_to_csr(w: np.ndarray, floor: float) -> sp.csr_matrix:
-    """The entries of ``w`` at or above ``floor`` as CSR (the matrix ``scipy`` builds from the
-    floored array), formed a few rows at a time: a pass to count each row's entries, a pass to copy
-    them, and nothing of the weights' size allocated but the result."""
-    N, C = w.shape
+def _dense_to_csr(rows: Callable[[int, int], np.ndarray], N: int, C: int, floor: float) -> sp.csr_matrix:
+    """The entries of the dense ``(N, C)`` weights at or above ``floor`` as CSR (the matrix ``scipy``
+    builds from the floored array), formed a few rows at a time (``rows(lo, hi)``): a pass to count
+    each row's entries, a pass to copy them, and nothing of the weights' size allocated but the
+    result."""
     step = max(1, (1 << 20) // max(C, 1))
     indptr = np.zeros(N + 1, dtype=np.int64)
     for lo in range(0, N, step):
-        block = w[lo : lo + step]
+        block = rows(lo, min(lo + step, N))
         indptr[lo + 1 : lo + 1 + block.shape[0]] = np.count_nonzero(_kept(block, floor), axis=1)
     np.cumsum(indptr, out=indptr)
     index = np.int32 if max(int(indptr[-1]), C) <= np.iinfo(np.int32).max else np.int64
-    data = np.empty(int(indptr[-1]), dtype=w.dtype)
+    data = np.empty(int(indptr[-1]))
     cols = np.empty(int(indptr[-1]), dtype=index)
     for lo in range(0, N, step):
-        block = w[lo : lo + step]
+        block = rows(lo, min(lo + step, N))
         keep = _kept(block, floor)
         a, b = indptr[lo], indptr[lo + block.shape[0]]
         data[a:b] = block[keep]
@@ -375,21 +412,37 @@ def estep(
                 largest=gated.largest,
             )
     TM = T * M
-    w = np.empty((N, TM))
     lse = np.empty(N)
     W = np.zeros(TM)
     WZ = np.zeros((2, TM))
+    platform, time_totals = np.empty((N, M)), np.empty((N, T))
+    best_column, largest = np.empty(N, dtype=np.intp), np.empty(N)
 
-    def sums(i: int, j: int, block: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """A block's sums, formed with the block (on its thread), then added in block order."""
-        return block.sum(axis=0), z[i:j].T @ block
+    def sums(i: int, j: int, block: np.ndarray) -> tuple[np.ndarray, ...]:
+        """A block's sums and its rows' statistics, formed with the block (on its thread; the block is
+        scratch, overwritten later), the sums then added in block order."""
+        ntm = block.reshape(j - i, T, M)
+        column = np.argmax(block, axis=1)
+        top = block[np.arange(j - i), column]
+        return block.sum(axis=0), z[i:j].T @ block, ntm.sum(axis=1), ntm.sum(axis=2), column, top
 
-    for i, j, block_lse, (block_W, block_WZ) in inputs.dense_blocks(w, threads, sums):
+    for i, j, block_lse, parts in inputs.dense_blocks(None, threads, sums):
         lse[i:j] = block_lse
-        W += block_W
-        WZ += block_WZ
+        W += parts[0]
+        WZ += parts[1]
+        platform[i:j], time_totals[i:j], best_column[i:j], largest[i:j] = parts[2:]
+    # The weights themselves are recomputed only if read (DenseRows).
     return EStepResult(
-        weights=w, W=W.reshape(T, M), WZ=WZ.T.reshape(T, M, 2), log_normaliser=lse, n_platforms=M
+        weights=DenseRows(inputs),
+        W=W.reshape(T, M),
+        WZ=WZ.T.reshape(T, M, 2),
+        log_normaliser=lse,
+        n_platforms=M,
+        inputs=inputs,
+        platform_totals=platform,
+        best_column=best_column,
+        largest=largest,
+        time_totals=time_totals,
     )
 
 

@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
+import tracemalloc
+
 import numpy as np
+import pytest
+import scipy.sparse as sp
 from scipy.special import logsumexp
 
-from pmht_opt.estep import estep
+from pmht_opt.estep import _WEIGHTS, estep
 
 
 def brute_force(
@@ -104,3 +109,54 @@ def test_the_summary_of_dense_weights_is_scipys_matrix_of_the_floored_array(rng:
         np.testing.assert_array_equal(got.indptr, want.indptr)
         np.testing.assert_array_equal(got.indices, want.indices)
         np.testing.assert_array_equal(got.data, want.data)
+
+
+def _paths(seed: int, N: int, T: int, M: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    z = rng.uniform(0, 10, (N, 2))
+    pos = np.cumsum(rng.normal(0, 0.1, (M, T, 2)), axis=1) + rng.uniform(2, 8, (M, 1, 2))
+    return z, pos
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("priors", [False, True])
+def test_dense_statistics_are_those_of_a_pass_over_the_weights(seed: int, priors: bool) -> None:
+    """The dense E-step forms its rows' statistics block by block without keeping the weights; they
+    equal bit for bit those of a pass over the weights, which are recomputed when read."""
+    z, pos = _paths(seed, 150, 700, 3)  # several blocks of rows
+    rng = np.random.default_rng(seed)
+    lt = np.log(rng.dirichlet(np.ones(700), 150)) if priors else None
+    lk = np.log(rng.dirichlet(np.ones(3), 150)) if priors else None
+    es = estep(z, pos, lt, lk, 0.3, gate=None, threads=2)
+    assert _WEIGHTS.unread(es) is not None
+    stats = (es.platform_prior(), es.time_prior(), *es.map_assignment(), es.max_weight())
+    summary = es.summary(1e-9)
+    assert _WEIGHTS.unread(es) is not None  # none of these formed the weights
+    w = es.weights
+    assert isinstance(w, np.ndarray) and w.shape == (150, 700 * 3)
+    bare = dataclasses.replace(es, platform_totals=None, best_column=None, largest=None, time_totals=None)
+    bare.inputs = None  # a pass over the stored array, as before the weights were recomputed
+    w3 = w.reshape(150, 700, 3)
+    expected = (w3.sum(axis=1), w3.sum(axis=2), *bare.map_assignment(), w.max(axis=1))
+    for got, want in zip(stats, expected, strict=True):
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(np.argmax(w, axis=1) % 3, stats[2])
+    floored = sp.csr_matrix(np.where(w >= 1e-9, w, 0.0))
+    for part in ("data", "indices", "indptr"):
+        np.testing.assert_array_equal(getattr(summary.weights, part), getattr(floored, part))
+    # The recomputed weights are the dense E-step's: the rows sum to one, with the direct formula.
+    np.testing.assert_allclose(w.sum(axis=1), 1.0, rtol=1e-12)
+
+
+def test_a_dense_estep_does_not_allocate_its_weights() -> None:
+    """Memory: the N x T*M weights (32 MB here) are not allocated by the E-step or its statistics (its
+    time totals, N x T, take 6.4 MB; the blocks' work arrays about 3 MB)."""
+    z, pos = _paths(3, 400, 2000, 5)
+    tracemalloc.start()
+    try:
+        es = estep(z, pos, None, None, 0.5, gate=None)
+        es.map_assignment(), es.platform_prior(), es.time_prior()
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 20e6, peak
