@@ -12,75 +12,19 @@ triples included, so consumers that rank tiny weights (the visit choice of
 
 from __future__ import annotations
 
-import threading
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
-from pmht_opt.gated_sums import SparseParts, row_maxima
+from pmht_opt.gated_sums import row_maxima
 from pmht_opt.gating import GATE_MAX_FRACTION, estep_gated, gate_margin, gated_log_normalisers
 from pmht_opt.likelihood import EStepInputs
 from pmht_opt.parallel import thread_count
+from pmht_opt.weights import WEIGHTS, DenseRows, WeightsOnRead, dense_to_csr
 
 #: Weights below this are left out of an :class:`EStepSummary` (each locale's weights sum to one).
 SUMMARY_FLOOR = 1e-12
-
-
-class DenseRows:
-    """The dense weights of an E-step, not kept but recomputed from its inputs when first read.
-
-    The EM loop needs of a dense E-step only ``W``, ``WZ``, the normalisers and the rows' statistics,
-    all formed block by block on the way; the ``N x T*M`` weights themselves (4 GB at N = 5000,
-    T = 5000, M = 20) are formed again, bit for bit (:meth:`EStepInputs.rows`), only if something reads
-    them.
-    """
-
-    def __init__(self, inputs: EStepInputs) -> None:
-        self.inputs = inputs
-
-    def join(self) -> np.ndarray:
-        """The ``(N, T*M)`` weights."""
-        return self.inputs.rows(0, self.inputs.locales.shape[0])
-
-
-class _JoinedOnRead:
-    """A dataclass field that may be given as :class:`SparseParts` or :class:`DenseRows` and reads as
-    the joined matrix or the recomputed array, formed once, on the first read (the pieces are then
-    dropped; two threads reading at once wait for one)."""
-
-    _lock = threading.Lock()
-
-    def __set_name__(self, owner: type, name: str) -> None:
-        self.slot = "_" + name
-
-    def __get__(self, obj: object, objtype: type | None = None) -> np.ndarray | sp.csr_matrix:
-        if obj is None:  # no default: the field is required
-            raise AttributeError(self.slot[1:])
-        value = obj.__dict__[self.slot]
-        if isinstance(value, (SparseParts, DenseRows)):
-            with self._lock:
-                value = obj.__dict__[self.slot]
-                if isinstance(value, (SparseParts, DenseRows)):
-                    value = obj.__dict__[self.slot] = value.join()
-        return value
-
-    def __set__(self, obj: object, value: np.ndarray | sp.csr_matrix | SparseParts | DenseRows) -> None:
-        obj.__dict__[self.slot] = value
-
-    def sparse(self, obj: object) -> bool:
-        """Whether ``obj``'s value is sparse, without joining pieces."""
-        value = obj.__dict__[self.slot]
-        return isinstance(value, SparseParts) or sp.issparse(value)
-
-    def unread(self, obj: object) -> DenseRows | None:
-        """``obj``'s dense weights not yet recomputed, else ``None``."""
-        value = obj.__dict__[self.slot]
-        return value if isinstance(value, DenseRows) else None
-
-
-_WEIGHTS = _JoinedOnRead()
 
 
 @dataclass(kw_only=True)
@@ -94,8 +38,9 @@ class EStepResult:
         ``t + 1`` (rows sum to one). A dense ``(N, T*M)`` array, or, from a gated E-step
         (:attr:`gated`), a ``scipy.sparse.csr_matrix`` of the same shape and layout whose missing
         entries are weights below ``exp(-gate)`` of their row's largest (zero). The methods below
-        handle both; :meth:`weights_ntm` gives a dense ``(N, T, M)`` array. A gated E-step may
-        give it as the blocks' pieces (:class:`pmht_opt.gated_sums.SparseParts`), joined when first read.
+        handle both; :meth:`weights_ntm` gives a dense ``(N, T, M)`` array. Either is formed when
+        first read (:mod:`pmht_opt.weights`): a gated E-step's from the blocks' pieces, a dense
+        E-step's recomputed from its inputs, bit for bit.
     W
         ``(T, M)``, ``sum_n w[n, t, m]``: the weight of the synthetic measurement.
     WZ
@@ -105,7 +50,7 @@ class EStepResult:
         objective.
     """
 
-    weights: _JoinedOnRead = _WEIGHTS
+    weights: WeightsOnRead = WEIGHTS
     W: np.ndarray
     WZ: np.ndarray
     log_normaliser: np.ndarray
@@ -123,7 +68,7 @@ class EStepResult:
     @property
     def gated(self) -> bool:
         """Whether the weights are sparse (a gated E-step)."""
-        return _WEIGHTS.sparse(self)
+        return WEIGHTS.sparse(self)
 
     @property
     def n_times(self) -> int:
@@ -217,9 +162,9 @@ class EStepResult:
     def summary(self, floor: float = SUMMARY_FLOOR) -> EStepSummary:
         """This E-step without its dense arrays: weights at or above ``floor`` and the exact
         per-locale platform probabilities (:class:`EStepSummary`)."""
-        unread = _WEIGHTS.unread(self)
+        unread = WEIGHTS.unread(self)
         if unread is not None:  # the rows recomputed a block at a time, never all at once
-            csr = _dense_to_csr(unread.inputs.rows, self.log_normaliser.shape[0], self.W.size, floor)
+            csr = dense_to_csr(unread.inputs.rows, self.log_normaliser.shape[0], self.W.size, floor)
             return EStepSummary(
                 weights=csr,
                 platform_probability=self.platform_prior(),
@@ -233,7 +178,7 @@ class EStepResult:
             csr.data[csr.data < floor] = 0.0
             csr.eliminate_zeros()
         else:
-            csr = _dense_to_csr(lambda lo, hi: w[lo:hi], w.shape[0], w.shape[1], floor)
+            csr = dense_to_csr(lambda lo, hi: w[lo:hi], w.shape[0], w.shape[1], floor)
         return EStepSummary(
             weights=csr,
             platform_probability=self.platform_prior(),
@@ -318,37 +263,6 @@ def log_likelihood(
         for i, j, block_lse, _ in inputs.dense_blocks(None, threads):
             lse[i:j] = block_lse
     return float(np.sum(lse))
-
-
-def _dense_to_csr(rows: Callable[[int, int], np.ndarray], N: int, C: int, floor: float) -> sp.csr_matrix:
-    """The entries of the dense ``(N, C)`` weights at or above ``floor`` as CSR (the matrix ``scipy``
-    builds from the floored array), formed a few rows at a time (``rows(lo, hi)``): a pass to count
-    each row's entries, a pass to copy them, and nothing of the weights' size allocated but the
-    result."""
-    step = max(1, (1 << 20) // max(C, 1))
-    indptr = np.zeros(N + 1, dtype=np.int64)
-    for lo in range(0, N, step):
-        block = rows(lo, min(lo + step, N))
-        indptr[lo + 1 : lo + 1 + block.shape[0]] = np.count_nonzero(_kept(block, floor), axis=1)
-    np.cumsum(indptr, out=indptr)
-    index = np.int32 if max(int(indptr[-1]), C) <= np.iinfo(np.int32).max else np.int64
-    data = np.empty(int(indptr[-1]))
-    cols = np.empty(int(indptr[-1]), dtype=index)
-    for lo in range(0, N, step):
-        block = rows(lo, min(lo + step, N))
-        keep = _kept(block, floor)
-        a, b = indptr[lo], indptr[lo + block.shape[0]]
-        data[a:b] = block[keep]
-        cols[a:b] = np.nonzero(keep)[1]
-    return sp.csr_matrix((data, cols, indptr.astype(index, copy=False)), shape=(N, C))
-
-
-def _kept(block: np.ndarray, floor: float) -> np.ndarray:
-    """The entries a summary keeps: at or above ``floor``, and non-zero (scipy keeps no zeros)."""
-    keep = block >= floor
-    if floor <= 0.0:
-        keep &= block != 0.0
-    return keep
 
 
 def safe_log(p: np.ndarray) -> np.ndarray:

@@ -10,7 +10,8 @@ import pytest
 import scipy.sparse as sp
 from scipy.special import logsumexp
 
-from pmht_opt.estep import _WEIGHTS, estep
+from pmht_opt.estep import estep
+from pmht_opt.weights import WEIGHTS
 
 
 def brute_force(
@@ -128,10 +129,10 @@ def test_dense_statistics_are_those_of_a_pass_over_the_weights(seed: int, priors
     lt = np.log(rng.dirichlet(np.ones(700), 150)) if priors else None
     lk = np.log(rng.dirichlet(np.ones(3), 150)) if priors else None
     es = estep(z, pos, lt, lk, 0.3, gate=None, threads=2)
-    assert _WEIGHTS.unread(es) is not None
+    assert WEIGHTS.unread(es) is not None
     stats = (es.platform_prior(), es.time_prior(), *es.map_assignment(), es.max_weight())
     summary = es.summary(1e-9)
-    assert _WEIGHTS.unread(es) is not None  # none of these formed the weights
+    assert WEIGHTS.unread(es) is not None  # none of these formed the weights
     w = es.weights
     assert isinstance(w, np.ndarray) and w.shape == (150, 700 * 3)
     bare = dataclasses.replace(es, platform_totals=None, best_column=None, largest=None, time_totals=None)
