@@ -88,9 +88,12 @@ class EStepResult:
         return rows, w.indices, w.data
 
     def weights_ntm(self) -> np.ndarray:
-        """Weights as ``(N, T, M)``: a view of dense weights; for gated ones a new array, recomputed
-        with every triple (the dropped ones too), as the dense E-step gives it."""
-        if self.inputs is not None:  # recomputed: the sparse weights are not needed (nor joined)
+        """Weights as ``(N, T, M)``: a view of dense weights held; otherwise a new array, recomputed
+        (for gated weights with every triple, the dropped ones too) as the dense E-step gives it."""
+        held = WEIGHTS.dense(self)
+        if held is not None:
+            return held.reshape(held.shape[0], -1, self.n_platforms)
+        if self.inputs is not None:  # recomputed: the weights need not be formed (nor joined)
             N = self.log_normaliser.shape[0]
             return self.inputs.rows(0, N).reshape(N, -1, self.n_platforms)
         w = self.weights
@@ -98,21 +101,26 @@ class EStepResult:
         return np.asarray(dense).reshape(w.shape[0], -1, self.n_platforms)
 
     def locale_weights(self, n: int) -> np.ndarray:
-        """Weights of locale ``n`` as ``(T, M)``: a view for dense weights; for gated ones the row
-        recomputed with every triple, so the ones the gate dropped keep their (tiny) values and order."""
-        if self.inputs is None and not isinstance(self.weights, sp.csr_matrix):
-            return np.asarray(self.weights[n]).reshape(-1, self.n_platforms)
+        """Weights of locale ``n`` as ``(T, M)``: a view of dense weights held; otherwise the row
+        recomputed (for gated weights with every triple, so the ones the gate dropped keep their
+        tiny values and order)."""
+        held = WEIGHTS.dense(self)
+        if held is not None:
+            return held[n].reshape(-1, self.n_platforms)
         return self.locales_weights(n, n + 1)[0]
 
     def locales_weights(self, lo: int, hi: int) -> np.ndarray:
         """Weights of locales ``lo .. hi - 1`` as ``(hi - lo, T, M)``, each row as :meth:`locale_weights`
         gives it (recomputed rows agree with one another bit for bit whatever the range)."""
-        if self.inputs is not None:  # recomputed: the sparse weights are not needed (nor joined)
+        held = WEIGHTS.dense(self)
+        if held is not None:
+            rows = held[lo:hi]
+        elif self.inputs is not None:  # recomputed: the weights need not be formed (nor joined)
             rows = self.inputs.rows(lo, hi)
-        elif isinstance(self.weights, sp.csr_matrix):
-            rows = self.weights[lo:hi].toarray()
-        else:
-            rows = np.asarray(self.weights[lo:hi])
+        else:  # sparse weights without their inputs
+            w = self.weights
+            assert isinstance(w, sp.csr_matrix)
+            rows = w[lo:hi].toarray()
         return rows.reshape(hi - lo, self.n_times, self.n_platforms)
 
     def time_prior(self) -> np.ndarray:

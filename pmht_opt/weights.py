@@ -65,6 +65,12 @@ class WeightsOnRead:
         value = obj.__dict__[self.slot]
         return isinstance(value, SparseParts) or sp.issparse(value)
 
+    def dense(self, obj: object) -> np.ndarray | None:
+        """``obj``'s dense weights if they are held (given, or recomputed by an earlier read), else
+        ``None``; forms nothing."""
+        value = obj.__dict__[self.slot]
+        return value if isinstance(value, np.ndarray) else None
+
     def unread(self, obj: object) -> DenseRows | None:
         """``obj``'s dense weights not yet recomputed, else ``None``."""
         value = obj.__dict__[self.slot]
