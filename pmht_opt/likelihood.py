@@ -153,15 +153,22 @@ def _dense_rows(
     z, r = block.locales, block.r
     log_tau, log_k = block.log_time_prior, block.log_platform_prior
     M, T, _ = block.positions.shape
-    scale = max(float(np.max(np.abs(p))), float(np.max(np.abs(z))))
+    # Far-away rows (a diverged plan, or a locale far out): hypot avoids the overflow of the squared
+    # coordinates. Decided row by row (NaN counts as far), so that a row's weights never depend on
+    # the other rows of its block.
+    far = ~(np.maximum(np.max(np.abs(z), axis=1), float(np.max(np.abs(p)))) < _SAFE_SCALE)
     distance2 = None
-    if scale < _SAFE_SCALE:
+    if not np.any(far):
         squared_distance(z[:, 0, None], z[:, 1, None], p[None, :, 0], p[None, :, 1], out=out, tmp=tmp)
     else:
-        # Far-away paths (a diverged plan): hypot avoids the overflow of the squared coordinates.
-        np.hypot(z[:, None, 0] - p[None, :, 0], z[:, None, 1] - p[None, :, 1], out=out)
+        near = ~far
+        if np.any(near):
+            out[near] = squared_distance(z[near, 0, None], z[near, 1, None], p[None, :, 0], p[None, :, 1])
+        zf = z[far]
+        far_d = np.hypot(zf[:, None, 0] - p[None, :, 0], zf[:, None, 1] - p[None, :, 1])
         with np.errstate(over="ignore"):
-            out *= out
+            far_d *= far_d
+        out[far] = far_d
         if not np.all(np.isfinite(out)):
             distance2 = out.copy()
     ll = log_weights_from_d2(out, r, const)
@@ -219,7 +226,9 @@ def _limit_rows(
         d2 = distance2[rows]
     d2 = np.where(allowed2, d2, np.inf)
     best = d2.min(axis=1, keepdims=True)
-    winners = allowed2 & (d2 == best) if np.all(np.isfinite(best)) else allowed2
+    # Each row on its own: the nearest allowed pairs, or every allowed pair where even the nearest
+    # distance overflows.
+    winners = allowed2 & ((d2 == best) | ~np.isfinite(best))
     # log of an indicator: 0 where a winner, -inf elsewhere; the row then normalises over the winners.
     ll[rows] = np.where(winners, 0.0, -np.inf)
     mx[rows] = 0.0

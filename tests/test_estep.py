@@ -161,3 +161,42 @@ def test_a_dense_estep_does_not_allocate_its_weights() -> None:
     finally:
         tracemalloc.stop()
     assert peak < 20e6, peak
+
+
+def test_a_far_locale_leaves_the_other_rows_of_its_block_alone() -> None:
+    """Each row is computed on its own (the overflow-safe distance only for far rows): rows recomputed
+    in other blocks, singly or by the summary's chunks, equal the E-step's bit for bit."""
+    z, pos = _paths(0, 300, 800, 6)
+    z[220] = 1e200
+    es = estep(z, pos, None, None, 0.3)
+    alone = [es.locale_weights(n).copy() for n in (216, 219, 221, 244)]
+    summary = es.summary(0.0).weights
+    w = np.asarray(es.weights)
+    for n, row in zip((216, 219, 221, 244), alone, strict=True):
+        np.testing.assert_array_equal(row.ravel(), w[n])
+    floored = sp.csr_matrix(w)
+    for part in ("data", "indices", "indptr"):
+        np.testing.assert_array_equal(getattr(summary, part), getattr(floored, part))
+
+
+def test_the_limit_of_an_infinitely_unlikely_row_is_its_own() -> None:
+    """Where every log weight of a row is -inf (diverged paths), its mass goes to its nearest allowed
+    pairs, whatever the other rows of its block (one of which may have only infinitely far pairs)."""
+    rng = np.random.default_rng(0)
+    N, T, M = 6, 4, 2
+    z = rng.uniform(0, 10, (N, 2))
+    pos = np.zeros((M, T, 2))
+    pos[0], pos[1] = 1e200, 1e153
+    pos[1, :, 0] += np.arange(T) * 1e152  # distinct distances on platform 1, nearest at t = 1
+    lk = np.zeros((N, M))
+    lk[0, 1] = -np.inf  # locale 0 may only use platform 0, whose squared distances overflow
+    with np.errstate(over="ignore"):
+        es = estep(z, pos, None, lk, 1e-3)
+        alone = es.locale_weights(3).copy()
+        w = es.weights_ntm()
+    expected = np.zeros((T, M))
+    expected[0, 1] = 1.0
+    np.testing.assert_array_equal(w[3], expected)
+    np.testing.assert_array_equal(alone, expected)
+    np.testing.assert_array_equal(w[0][:, 0], np.full(T, 1.0 / T))  # no finite distance: all allowed
+    assert np.all(np.isinf(es.log_normaliser))
