@@ -55,7 +55,8 @@ class EStepResult:
     WZ: np.ndarray
     log_normaliser: np.ndarray
     n_platforms: int
-    #: The E-step's inputs, kept to recompute rows exactly.
+    #: The E-step's inputs, kept to recompute rows exactly. Not copied: arrays changed in place after
+    #: the E-step would change the weights recomputed from them (nothing in the package does).
     inputs: EStepInputs | None = field(default=None, repr=False, compare=False)
     #: Computed by the E-step on the way, so as not to pass over the weights again:
     #: ``sum_t w[n, t, m]`` ``(N, M)``, each row's column of largest weight and that weight.
