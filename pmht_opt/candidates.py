@@ -103,7 +103,7 @@ class TreeCandidates:
         N = z.shape[0]
         self.z = z
         self.loops = loops
-        self.zx, self.zy = np.ascontiguousarray(z[:, 0]), np.ascontiguousarray(z[:, 1])
+        self.zx, self.zy = inputs.coordinates
         self.positions = positions
         self.trees = [cKDTree(positions[m], balanced_tree=False, compact_nodes=False) for m in range(M)]
         inv2r = 0.5 / r

@@ -174,15 +174,7 @@ class EStepResult:
         unread = WEIGHTS.unread(self)
         if unread is not None:  # the rows recomputed a block at a time, never all at once
             csr = dense_to_csr(unread.inputs.rows, self.log_normaliser.shape[0], self.W.size, floor)
-            return EStepSummary(
-                weights=csr,
-                platform_probability=self.platform_prior(),
-                log_normaliser=self.log_normaliser.copy(),
-                n_platforms=self.n_platforms,
-                floor=floor,
-            )
-        w = self.weights
-        if isinstance(w, sp.csr_matrix):
+        elif isinstance(w := self.weights, sp.csr_matrix):
             csr = w.copy()
             csr.data[csr.data < floor] = 0.0
             csr.eliminate_zeros()

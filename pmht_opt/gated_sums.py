@@ -104,12 +104,12 @@ class GatedAccumulator:
     triples is allocated but the weights and their columns, which the CSR matrix keeps.
     """
 
-    def __init__(self, z: np.ndarray, N: int, T: int, M: int, loops: Any = None) -> None:
+    def __init__(self, inputs: EStepInputs, N: int, T: int, M: int, loops: Any = None) -> None:
         self.N, self.T, self.M = N, T, M
         #: The compiled loops (:mod:`pmht_opt.kernels`) that prepare and add every block, or ``None``.
         self.loops = loops
         # The locales' coordinates as two contiguous arrays: a block gathers from them twice.
-        self.zx, self.zy = np.ascontiguousarray(z[:, 0]), np.ascontiguousarray(z[:, 1])
+        self.zx, self.zy = inputs.coordinates
         TM = T * M
         self.W = np.zeros(TM)
         self.WZ = np.zeros((2, TM))

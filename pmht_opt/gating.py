@@ -75,7 +75,7 @@ def estep_gated(inputs: EStepInputs, margin: float, threads: int = 1) -> GatedWe
     the number of triples.
     """
     loops = _loops(inputs)
-    out = GatedAccumulator(inputs.locales, *_sizes(inputs), loops)
+    out = GatedAccumulator(inputs, *_sizes(inputs), loops)
     for block in _gated_blocks(inputs, margin, threads, out.prepare, loops):
         if block is None:
             return None

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import os
 import threading
+from collections.abc import Callable
 from types import SimpleNamespace
 from typing import Any
 
@@ -89,14 +90,7 @@ def _compile() -> SimpleNamespace | None:
     except ImportError:
         return None
     jit = numba.njit(cache=True, nogil=True, fastmath=False, boundscheck=False)
-    return SimpleNamespace(
-        maxima=jit(_maxima),
-        keep=jit(_keep),
-        normalise=jit(_normalise),
-        prepare=jit(_prepare),
-        accumulate=jit(_accumulate),
-        search=jit(_search),
-    )
+    return SimpleNamespace(**{name: jit(loop) for name, loop in LOOPS.items()})
 
 
 # The loops, written in numba's subset of Python. They are plain functions until compiled and run
@@ -292,3 +286,14 @@ def _search(
                     d2[out] = d
                     out += 1
     return row[:out], t[:out], plat[:out], d2[:out]
+
+
+#: The loops by the names the E-step calls them, uncompiled (:func:`compiled` gives them compiled).
+LOOPS: dict[str, Callable[..., Any]] = {
+    "search": _search,
+    "maxima": _maxima,
+    "keep": _keep,
+    "normalise": _normalise,
+    "prepare": _prepare,
+    "accumulate": _accumulate,
+}

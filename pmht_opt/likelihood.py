@@ -10,6 +10,7 @@ alike).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -91,6 +92,11 @@ class EStepInputs:
             self.log_time_prior = np.asarray(self.log_time_prior, dtype=np.float64)
         if self.log_platform_prior is not None:
             self.log_platform_prior = np.asarray(self.log_platform_prior, dtype=np.float64)
+
+    @functools.cached_property
+    def coordinates(self) -> tuple[np.ndarray, np.ndarray]:
+        """The locales' x and y, each contiguous: the gated E-step gathers from them block by block."""
+        return np.ascontiguousarray(self.locales[:, 0]), np.ascontiguousarray(self.locales[:, 1])
 
     def rows(self, lo: int, hi: int) -> np.ndarray:
         """``w[lo:hi]`` as ``(hi - lo, T*M)``, computed as the dense E-step computes it (bit for bit)."""

@@ -146,14 +146,7 @@ def test_the_loops_uncompiled_give_the_numpy_bits(monkeypatch: Any) -> None:
     z, pos, lt, lk = z[:25], pos[:, :60], lt[:25, :60], lk[:25]
     monkeypatch.setenv(kernels.ENV_SWITCH, "0")
     plain = estep(z, pos, lt, lk, r, gate="auto")
-    python = SimpleNamespace(
-        maxima=kernels._maxima,
-        keep=kernels._keep,
-        normalise=kernels._normalise,
-        prepare=kernels._prepare,
-        accumulate=kernels._accumulate,
-        search=kernels._search,
-    )
+    python = SimpleNamespace(**kernels.LOOPS)
     monkeypatch.setattr(kernels, "compiled", lambda triples: python)
     slow = estep(z, pos, lt, lk, r, gate="auto")
     assert plain.gated
