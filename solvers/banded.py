@@ -79,7 +79,7 @@ from solvers.band_lu import BandLU
 from solvers.exceptions import ProblemError
 from solvers.problem import dense
 
-__all__ = ["BandedSmoother", "BandedSmootherResult", "banded_smoother"]
+__all__ = ["BandedFactor", "BandedSmoother", "BandedSmootherResult", "banded_smoother"]
 
 #: Steps of the batch (systems times horizon) per LAPACK call below which the batch is not split.
 MIN_STEPS_PER_THREAD = 1000
@@ -336,6 +336,29 @@ class BandedSmoother:
         backward_error = self._backward_error(z, xs0, yk, rho) if check else None
         return self._result(z, x0, yk, rho, backward_error)
 
+    def factor(self, r: float, weight: ArrayLike, *, threads: int = 1) -> BandedFactor:
+        """The KKT matrix of these weights factorised, to be solved for any forcing
+        (:class:`BandedFactor`): the same matrix :meth:`solve` factorises, kept.
+
+        Raises
+        ------
+        ProblemError
+            As :meth:`solve`, for ``r`` and ``weight``.
+        """
+        zero = np.zeros((self.B, self.n, 1))
+        r, _, _, rho = self._data(r, zero, np.zeros((self.B, self.T, 1)), weight, 0)
+        band = self._band_T.copy()
+        flat = band.reshape(-1)
+        for index, value in zip(self._pen_index, self._pen_value, strict=True):
+            flat[index] += rho * value
+        try:
+            lu = BandLU(band.T, self.k, np.zeros((self.N, 1), order="F"), self._parts(), threads)
+        except np.linalg.LinAlgError as err:
+            raise ProblemError(
+                f"The KKT matrix is numerically singular ({err}): the weights or r are out of range."
+            ) from None
+        return BandedFactor(self, rho, lu)
+
     def _parts(self) -> list[tuple[int, int]]:
         """Rows ``[lo, hi)`` of the groups of whole systems that LAPACK factorises one call each: about
         :data:`MIN_STEPS_PER_THREAD` steps per group, at most one system each and at most
@@ -431,6 +454,65 @@ class BandedSmoother:
         if np.any(res[denom == 0] > 0):  # pragma: no cover - a zero system with a residual
             return float(np.inf)
         return float(ratio.max())
+
+
+class BandedFactor:
+    r"""The factorised KKT matrix of :class:`BandedSmoother` for one set of weights
+    (:meth:`BandedSmoother.factor`).
+
+    :meth:`solve` returns the minimiser of ``J(x) - sum_t f_t' x_t`` for a forcing ``f``, ``J`` the
+    smoother's objective with its measurements left out (the fit ``w_t / (2 r) (h' x_t)^2`` kept):
+    the solution of ``(D' Q^-1 D + P) x = f`` with the start's term, ``P`` the penalty. With
+    ``f_t = (w_t / r) y_t h`` it is the smoothed path; with ``x_0 = 0`` and ``f = c`` it is ``H^-1 c``,
+    the response of the path to a force ``c``, which is what a constrained problem needs of ``H``.
+    Each solve takes one step of iterative refinement by default, as :meth:`BandedSmoother.solve`.
+    """
+
+    def __init__(self, smoother: BandedSmoother, rho: np.ndarray, lu: BandLU) -> None:
+        self.smoother, self.rho, self.lu = smoother, rho, lu
+
+    def solve(
+        self, forcing: ArrayLike, x0: ArrayLike | None = None, *, refine: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The states and whitened process noise, both ``(B, T, n, K)``, for ``forcing (B, T, n, K)``
+        on the states (the model's units) and the known starts ``x0 (B, n, K)`` (zero if ``None``).
+
+        Raises
+        ------
+        ProblemError
+            Wrong shapes or non-finite values.
+        """
+        s = self.smoother
+        n, B, T = s.n, s.B, s.T
+        f = np.asarray(forcing, dtype=float)
+        if f.ndim != 4 or f.shape[3] < 1:
+            raise ProblemError(
+                f"forcing must have shape (B, T, n, K) = ({B}, {T}, {n}, K >= 1), got {f.shape}."
+            )
+        K = f.shape[3]
+        f = dense("forcing", f, (B, T, n, K))
+        x0a = np.zeros((B, n, K)) if x0 is None else dense("x0", x0, (B, n, K))
+        if int(refine) != refine or refine < 0:
+            raise ProblemError(f"refine must be a non-negative integer, got {refine!r}.")
+        xs0 = np.moveaxis(x0a, 2, 0) / s.d  # (K, B, n)
+        push = np.moveaxis(f, 3, 0) * s.d  # (K, B, T, n): the x rows scaled by d
+        rhs = np.zeros((K, B, T, 2 * n))
+        rhs[..., n:] = push
+        rhs[:, :, 0, :n] += xs0 @ s.Fs.T
+        b = rhs.reshape(K, s.N).T  # (N, K), column-major
+        self.lu.solve(b)
+        z = b.T.reshape(rhs.shape)
+        no_y = np.zeros((K, B, T))
+        for _ in range(int(refine)):
+            res = s._residual(z, xs0, no_y, self.rho)
+            res[..., n:] += push
+            correction = res.reshape(K, s.N).T
+            self.lu.solve(correction)
+            z += correction.T.reshape(z.shape)
+        if not np.all(np.isfinite(z)):
+            raise ProblemError("The solve produced non-finite values: the data are out of range.")
+        z *= s._unscale
+        return np.moveaxis(z[..., n:], 0, -1), np.moveaxis(z[..., :n] @ s.L, 0, -1)
 
 
 @functools.lru_cache(maxsize=64)

@@ -21,6 +21,7 @@ import scipy.sparse as sp
 import solvers
 from pmht_opt.exceptions import ConfigError, SolverError
 from pmht_opt.model import PX, PY, STATE_DIM, MotionModel
+from pmht_opt.mstep.condensed import CondensedQP
 from pmht_opt.mstep.formulation import QPLayout, dynamics_rows, in_increments
 from pmht_opt.mstep.rows import ExtraRows, PlatformRows, assemble
 
@@ -49,6 +50,9 @@ class Settings:
     retries: solvers.RetryChain
     #: The retries of solves with constraint rows (``None``: :attr:`retries`).
     constrained_retries: solvers.RetryChain | None = None
+    #: The settings of condensed constrained solves (``None``: no condensing,
+    #: :mod:`pmht_opt.mstep.condensed`).
+    condensed: dict[str, Any] | None = None
 
     def chain(self, constrained: bool) -> solvers.RetryChain:
         """The retries of a solve with (``True``) or without constraint rows."""
@@ -79,6 +83,7 @@ class PlatformQP:
         retries: solvers.RetryChain = solvers.NO_RETRY,
         constrained_retries: solvers.RetryChain | None = None,
         margin: float = 0.0,
+        condensed_settings: dict[str, Any] | None = None,
     ) -> None:
         self.model = model
         #: The least absolute back-off of hard cones (:func:`~pmht_opt.mstep.rows.assemble`).
@@ -91,6 +96,7 @@ class PlatformQP:
             settings if constrained_settings is None else constrained_settings,
             retries,
             constrained_retries,
+            condensed_settings,
         )
         self._qps: dict[int, HorizonQP] = {}
 
@@ -126,14 +132,15 @@ class PlatformQP:
         rows: PlatformRows | None = None,
         probe: Callable[[solvers.QPSolution], None] | None = None,
         budget: solvers.WorkBudget | None = None,
+        exact: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[solvers.QPSolution, np.ndarray | None, np.ndarray | None]:
         """Solve for weights ``W (T,)``, weighted locale sums ``WZ (T, 2)`` and constraint rows
-        (``probe``, ``budget``: see :meth:`HorizonQP.solve`)."""
+        (``probe``, ``budget``, ``exact``: see :meth:`HorizonQP.solve`)."""
         T = self.horizon
         constrained = rows is not None and bool(rows.items)
         n = T if constrained else max(weighted_horizon(W), 1)
         qp = self.qp(n)
-        sol = qp.solve(W[:n], WZ[:n], r, rows, probe, budget)
+        sol = qp.solve(W[:n], WZ[:n], r, rows, probe, budget, exact if n == T else None)
         if sol.x is None:
             return sol, None, None
         head = qp.states(sol.x)
@@ -197,7 +204,11 @@ class HorizonQP:
         self.extra: ExtraRows | None = None
         self._pattern: tuple[object, ...] | None = None
         self._setup_r: float | None = None
+        #: The key of the rows in :attr:`extra`, and of those the backend session holds.
         self._rows_key: tuple[tuple[int, ...], ...] | None = None
+        self._session_key: tuple[tuple[int, ...], ...] | None = None
+        #: The condensed solve of constrained M-steps (:mod:`pmht_opt.mstep.condensed`), if used.
+        self.condensed = None if state.condensed is None else CondensedQP(model, x0, self.layout)
 
     def layout_for(self, constrained: bool) -> QPLayout:
         """The layout of a QP with or without constraint rows.
@@ -268,6 +279,7 @@ class HorizonQP:
         rows: PlatformRows | None = None,
         probe: Callable[[solvers.QPSolution], None] | None = None,
         budget: solvers.WorkBudget | None = None,
+        exact: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> solvers.QPSolution:
         """Solve for weights ``W (T,)``, weighted locale sums ``WZ (T, 2)`` and constraint rows.
 
@@ -275,6 +287,11 @@ class HorizonQP:
         M-step asks whether the rows are infeasible, which a cheap feasibility problem settles far
         sooner than a chain of retries of a solver that cannot succeed). ``budget`` is the work this
         solve and its retries share with the M-step's other platforms (:class:`solvers.WorkBudget`).
+        ``exact`` is the unconstrained optimum's states and whitened noise ``(T, 6)``, if the caller
+        has them: a condensed solve starts from them (:mod:`pmht_opt.mstep.condensed`).
+
+        With constraint rows and condensing on, the condensed solve is tried first; if it does not
+        succeed, the whole QP below is solved.
 
         A session's scaling (both backends equilibrate at setup) is kept while ``r`` stays within a
         factor :data:`RESCALE` of the ``r`` it was set up with; past that, and whenever the rows'
@@ -282,18 +299,37 @@ class HorizonQP:
         and a stale scaling leaves interior-point solves "almost solved".
         """
         key = rows.key if rows is not None else ()
+        if key != self._rows_key:
+            self._rows_key = key
+            self.extra = None
+            if rows and rows.items:
+                self.extra = assemble(
+                    rows.items, self.layout.n, self.col_map, units=self.layout.units, margin=self.margin
+                )
+        if self.extra is not None and self.condensed is not None:
+            assert self.state.condensed is not None
+            sol = self.condensed.solve(self.extra, W, WZ, r, self.session_class, self.state.condensed, exact)
+            if sol is not None:
+                return sol
+        return self._solve_full(W, WZ, r, probe, budget)
+
+    def _solve_full(
+        self,
+        W: np.ndarray,
+        WZ: np.ndarray,
+        r: float,
+        probe: Callable[[solvers.QPSolution], None] | None,
+        budget: solvers.WorkBudget | None,
+    ) -> solvers.QPSolution:
+        """Solve the whole QP of the current rows through the backend session (:meth:`solve`)."""
+        key = self._rows_key
         stale = self._setup_r is not None and not (1.0 / RESCALE <= r / self._setup_r <= RESCALE)
-        if self.session is not None and key == self._rows_key and not stale:  # only the weights moved
+        if self.session is not None and key == self._session_key and not stale:  # only the weights moved
             q = self._cost(W, WZ, r)
             self.session.update(P_data=self.diag[self.stored], q=q)
             self.session.budget = budget
             return self._retry(self.session.solve(), q, fresh=False, probe=probe)
-        self._rows_key = key
-        self.extra = None
-        if rows and rows.items:
-            self.extra = assemble(
-                rows.items, self.layout.n, self.col_map, units=self.layout.units, margin=self.margin
-            )
+        self._session_key = key
         pattern = None if self.extra is None else self.extra.pattern_key()
         q = self._cost(W, WZ, r)
         A, b, cones = self._constraints()

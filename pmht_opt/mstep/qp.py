@@ -18,6 +18,7 @@ from pmht_opt.mstep.diagnosis import diagnose
 from pmht_opt.mstep.platform import PlatformQP
 from pmht_opt.mstep.rows import PlatformRows, RowBuilder
 from pmht_opt.mstep.tuning import (
+    CONDENSED,
     CONSTRAINED_DEFAULTS,
     CONSTRAINED_RETRIES,
     DEFAULTS,
@@ -67,6 +68,13 @@ def _work_limit(value: object) -> float | None:
         raise ConfigError(f"solver_settings: {err} None lifts the budget.") from err
 
 
+def _flag(name: str, value: object) -> bool:
+    """``solver_settings[name]`` checked: a bool."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ConfigError(f"solver_settings: {name} must be True or False, got {value!r}.")
+    return bool(value)
+
+
 def _screen_tol(block: Block) -> np.ndarray | float:
     """The screening tolerance of each unit of ``block`` (:data:`SCREEN_TOL`)."""
     if block.kind != "soc":
@@ -100,6 +108,8 @@ class QPMStep(MStep):
         self.solver = solver
         #: Work budget of one M-step with constraint rows (``None``: none), :data:`MSTEP_WORK`.
         self.mstep_work = _work_limit(self.settings.pop("mstep_work_limit", MSTEP_WORK.get(solver)))
+        #: Whether constrained M-steps are condensed first (:mod:`pmht_opt.mstep.condensed`).
+        self.condense = _flag("condense", self.settings.pop("condense", solver in CONDENSED))
         #: Whether platforms without constraint rows take the exact smoother's answer (solver "auto").
         self.exact_unconstrained = exact_unconstrained
         try:
@@ -111,12 +121,18 @@ class QPMStep(MStep):
             check_cvxpy_solver(self.settings, "solver_settings")
             self.options = {**cvxpy_defaults(self.settings), **self.settings}
             self.constrained_options = dict(self.settings)
+            self.condensed_options = dict(self.settings)
             retries = cvxpy_retries(self.settings)
             constrained_retries = retries
             threads = 1
         else:
             self.options = {**DEFAULTS.get(solver, {}), **self.settings}
             self.constrained_options = {**CONSTRAINED_DEFAULTS.get(solver, {}), **self.settings}
+            self.condensed_options = {
+                **CONSTRAINED_DEFAULTS.get(solver, {}),
+                **CONDENSED.get(solver, {}),
+                **self.settings,
+            }
             retries = RETRIES.get(solver, solvers.NO_RETRY)
             constrained_retries = CONSTRAINED_RETRIES.get(solver, retries)
         # Sets touching a setting the caller chose are skipped: do not second-guess the caller.
@@ -137,6 +153,7 @@ class QPMStep(MStep):
             retries,
             self.constrained_retries,
             margin=MARGIN_RESOLUTIONS * resolution(self.scenario),
+            condensed_settings=self.condensed_options if self.condense else None,
         )
 
     def _screen(self, data: MStepData, rows: dict[int, PlatformRows], exact_states: np.ndarray) -> list[int]:
@@ -180,6 +197,7 @@ class QPMStep(MStep):
         rows = self.rows.rows(data.ctx, data.active, data.strengths)
         exact = self.reference().smooth(data)
         exact_states = self._with_start(axis_states(exact.means[:, 1:]))
+        exact_noise = axis_states(exact.noise)
         active = self._screen(data, rows, exact_states)
 
         constrained = any(r.items for r in rows.values())
@@ -196,6 +214,7 @@ class QPMStep(MStep):
                 platform_rows,
                 probe=self._probe(m, data, platform_rows, verdicts),
                 budget=budget,
+                exact=(exact_states[m, 1:], exact_noise[m]),
             )
             if not sol.usable(self.accept_inaccurate) and platform_rows is not None and platform_rows.items:
                 raise verdicts.get(m) or self._diagnose(m, data, platform_rows, sol)
@@ -210,7 +229,7 @@ class QPMStep(MStep):
         else:
             answers = [one(m) for m in active]
         body = exact_states[:, 1:].copy()
-        noise = axis_states(exact.noise)
+        noise = exact_noise.copy()
         for m, (_, states, u) in zip(active, answers, strict=True):
             body[m], noise[m] = states, u
         sols = [sol for sol, _, _ in answers]

@@ -246,7 +246,7 @@ def assemble(
         b = np.zeros(0)
     A.sort_indices()
     return ExtraRows(
-        A=A, b=b, cones=_merge(out.cones), n_slack=n_slack, slack_cost=slack_cost, slack_owner=owners
+        A=A, b=b, cones=merge_cones(out.cones), n_slack=n_slack, slack_cost=slack_cost, slack_owner=owners
     )
 
 
@@ -310,7 +310,7 @@ def _hard_cones(kind: str, rows: int, dim: int) -> list[solvers.Cone]:
     return [solvers.SOC(dim) for _ in range(rows // dim)]
 
 
-def _merge(cones: list[solvers.Cone]) -> list[solvers.Cone]:
+def merge_cones(cones: list[solvers.Cone]) -> list[solvers.Cone]:
     """Merge neighbouring linear cones of one kind (fewer, larger cones for the backends)."""
     out: list[solvers.Cone] = []
     for c in cones:

@@ -50,6 +50,18 @@ from typing import Any
 
 from solvers import RetryChain
 
+#: Backends whose constrained M-steps are condensed onto their binding rows first
+#: (:mod:`pmht_opt.mstep.condensed`), with the options of the small condensed QP (over the constrained
+#: ones; the caller's settings override both). ``solver_settings={"condense": False}`` turns it off.
+CONDENSED: dict[str, dict[str, Any]] = {
+    "clarabel": {
+        "iterative_refinement_enable": True,
+        "tol_gap_abs": 1e-10,
+        "tol_gap_rel": 1e-10,
+        "tol_feas": 1e-10,
+    },
+}
+
 #: Options of the unconstrained M-step QP per backend (the caller's settings override them).
 DEFAULTS: dict[str, dict[str, Any]] = {
     "osqp": {

@@ -1,0 +1,408 @@
+r"""A constrained M-step condensed onto the rows that bind: a small QP on the exact smoother's responses.
+
+One platform's M-step with constraint rows is, on its stacked states ``X`` (``6 T``, the model's
+units) and the soft rows' slacks ``s``,
+
+.. math::
+
+    \min_{X, s}\ \tfrac12 X^\top H X - g^\top X + c^\top s
+    \quad\text{s.t.}\quad b - C X - E s \in \mathcal K,
+
+where ``1/2 X'HX - g'X`` is the M-step objective (docs/model.md section 5: the process noise and
+the weighted fit), ``H`` positive definite and banded in time, and ``(C, E, b, K)`` the rows of
+:func:`~pmht_opt.mstep.rows.assemble`. Its unconstrained optimum ``X* = H^-1 g`` is the exact
+smoother's (:class:`solvers.banded.BandedSmoother`).
+
+**Condensing.** Keep only a set ``S`` of the rows. The optimum of that problem is stationary,
+``H X - g + C_S' mu = 0``, so it lies in ``X* + H^-1 C_S' w`` for some ``w`` (``w = -mu``), and on
+that affine set ``J(X* + B w) = J(X*) + 1/2 w' Sigma w`` with ``B = H^-1 C_S'`` and
+``Sigma = C_S B``. The problem with the rows ``S`` is therefore exactly
+
+.. math::
+
+    \min_{w, s_S}\ \tfrac12 w^\top \Sigma w + c_S^\top s_S
+    \quad\text{s.t.}\quad (b_S - C_S X^*) - \Sigma w - E_S s_S \in \mathcal K_S,
+
+a QP with one variable per row of ``S`` (and its slacks), whatever the horizon. ``B`` takes one
+solve of the exact smoother's factorised KKT system per row and axis
+(:class:`solvers.banded.BandedFactor`): ``H`` is never formed, so its conditioning (entries near
+1e10 beside 1e2) never enters.
+
+**Working set.** The problem with the rows ``S`` is a relaxation of the whole one; if its optimum
+meets every other row, it is the whole problem's optimum. ``S`` starts with the equalities, the
+units the unconstrained optimum violates or comes within :data:`NEAR` of, and those that bound the
+platform's last answer to the same rows; units the answer still violates join it, and the small QP
+is solved again (at most :data:`MAX_ROUNDS` times). Speed limits and area bounds on the paper's
+scenarios bind at a handful of the 500 steps, and guaranteed visits at one step per locale, so the
+QP the backend solves has tens of variables instead of the 6000 of the full one.
+
+The answer is the same optimum as the full QP's, to the backend's tolerance; the two differ by that
+much (about 1e-7 in position), not bit for bit. A condensed solve that does not succeed (a status
+other than solved, or too many rounds) is given up and the full QP is solved instead, with its
+retries and infeasibility diagnosis: a failure is never reported from here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+import solvers
+from pmht_opt.model import STATE_DIM, MotionModel
+from pmht_opt.mstep.formulation import BLOCK, QPLayout
+from pmht_opt.mstep.rows import ExtraRows, merge_cones
+from solvers.banded import BandedFactor, BandedSmoother
+
+#: A unit outside the working set counts as met when its violation (``-s`` of a linear row,
+#: ``||s_1..|| - s_0`` of a cone, in the rows' own scale: cones have radius 1) is at most this.
+MET = 1e-9
+#: Of the units the unconstrained optimum violates, those violated by at least this fraction of the
+#: worst start the working set, beside the units that bound the platform's last answer to the same rows.
+WORST = 0.5
+#: A unit of the working set whose slack at the answer is below this binds it: it starts the next
+#: M-step's working set.
+BOUND = 1e-3
+#: Most small QPs per M-step before the full QP is solved instead.
+MAX_ROUNDS = 16
+#: Most rows on the states in the working set. The small QP is dense: its cost grows with the cube of
+#: its rows, and past about this many (a limit binding over long stretches) the sparse full QP is
+#: cheaper, so it is solved instead.
+MAX_ROWS = 160
+
+
+@dataclass
+class _Units:
+    """The units of a set of rows (a linear row, or a whole cone), in row order."""
+
+    start: np.ndarray  # first row of each unit
+    size: np.ndarray  # rows per unit
+    kind: np.ndarray  # 0 zero, 1 nonneg, 2 soc
+    of_row: np.ndarray  # unit of each row
+
+    @classmethod
+    def of(cls, cones: list[solvers.Cone]) -> _Units:
+        starts, sizes, kinds = [], [], []
+        row = 0
+        for cone in cones:
+            if cone.kind == "soc":
+                starts.append(np.array([row]))
+                sizes.append(np.array([cone.dim]))
+                kinds.append(np.array([2]))
+            else:
+                starts.append(row + np.arange(cone.dim))
+                sizes.append(np.ones(cone.dim, dtype=int))
+                kinds.append(np.full(cone.dim, 0 if cone.kind == "zero" else 1))
+            row += cone.dim
+        start = np.concatenate(starts) if starts else np.zeros(0, dtype=int)
+        size = np.concatenate(sizes) if sizes else np.zeros(0, dtype=int)
+        return cls(
+            start=start,
+            size=size,
+            kind=np.concatenate(kinds) if kinds else np.zeros(0, dtype=int),
+            of_row=np.repeat(np.arange(start.size), size),
+        )
+
+    def margin(self, s: np.ndarray) -> np.ndarray:
+        """Per unit, how far the slacks ``s`` of the rows are inside their cone (negative: outside)."""
+        if self.start.size == 0:
+            return np.zeros(0)
+        first = s[self.start]
+        rest = s * s
+        rest[self.start] = 0.0
+        norm = np.sqrt(np.add.reduceat(rest, self.start))
+        return np.where(self.kind == 2, first - norm, np.where(self.kind == 0, -np.abs(first), first))
+
+    def rows(self, units: np.ndarray) -> np.ndarray:
+        """The rows of ``units`` (sorted unit indices), in order."""
+        size = self.size[units]
+        offsets = np.arange(int(size.sum())) - np.repeat(np.cumsum(size) - size, size)
+        return np.repeat(self.start[units], size) + offsets
+
+    def cones(self, units: np.ndarray) -> list[solvers.Cone]:
+        """The cones of ``units`` (sorted), neighbouring linear ones merged."""
+        linear = (solvers.Zero(1), solvers.Nonneg(1))
+        kinds, dims = self.kind[units].tolist(), self.size[units].tolist()
+        cones = [solvers.SOC(d) if k == 2 else linear[k] for k, d in zip(kinds, dims, strict=True)]
+        return merge_cones(cones)
+
+
+class _Rows:
+    """One platform's assembled rows split for condensing: ``C`` on the stacked states (the model's
+    units), ``E`` on the slacks, ``b``, the units, and each slack's own ``s >= 0`` unit."""
+
+    def __init__(self, extra: ExtraRows, layout: QPLayout) -> None:
+        n = layout.n
+        A = extra.A.tocsr()
+        coo = A[:, :n].tocoo()
+        step, comp = np.divmod(coo.col, BLOCK)
+        if np.any(comp >= STATE_DIM):  # pragma: no cover - rows are written on the states only
+            raise ValueError("constraint rows on the process noise cannot be condensed")
+        self.C = sp.csr_matrix(
+            (coo.data / layout.units[comp], (coo.row, STATE_DIM * step + comp)),
+            shape=(A.shape[0], STATE_DIM * layout.T),
+        )
+        self.E = A[:, n:].tocsr()
+        # Stored zeros (a sparsity pattern kept for the full QP's sessions) carry no number here.
+        self.C.eliminate_zeros()
+        self.E.eliminate_zeros()
+        self.b = extra.b
+        self.units = _Units.of(extra.cones)
+        self.has_state = np.diff(self.C.indptr) > 0
+        # Units whose rows touch only slacks (``s >= 0``), by their slack column.
+        on_state = np.zeros(self.units.start.size, dtype=bool)
+        on_state[self.units.of_row[self.has_state]] = True
+        self.slack_unit = np.full(extra.n_slack, -1)
+        for u in np.flatnonzero(~on_state):
+            cols = self.E[self.units.rows(np.array([u]))].indices
+            if cols.size == 1:
+                self.slack_unit[cols[0]] = u
+        self.always = np.flatnonzero(self.units.kind == 0)
+
+
+class _Responses:
+    """The responses ``H^-1 c`` of rows ``c`` of ``C`` to the factorised ``H``, solved as rows join the
+    working set, and the path's response to ``C_S' w``.
+
+    ``H`` is the same for both axes and does not couple them, so a row's response is that of its x
+    part on the x axis plus that of its y part on the y axis, and parts that are multiples of one
+    pattern (a visit's x and y rows, a speed cone's two components, the two walls of a bound) share
+    one solve of the one-axis system.
+    """
+
+    def __init__(self, C: sp.csr_matrix, factor: BandedFactor, T: int) -> None:
+        self.C, self.factor, self.T = C, factor, T
+        #: Per-axis responses ``(3 T, columns)``, and the column of each pattern.
+        self.R = np.zeros((3 * T, 0))
+        self._pattern: dict[bytes, int] = {}
+        #: Per row: ``(axis, column, scale)`` of each part.
+        self._parts: dict[int, list[tuple[int, int, float]]] = {}
+
+    def _add(self, new: list[int]) -> None:
+        """Solve for the patterns of rows ``new`` not seen yet (without iterative refinement: the
+        responses only form the small QP's matrix ``Sigma``, whose rounding moves the optimum ``w``
+        by as little; the path itself is solved refined, :meth:`apply`)."""
+        forces: list[tuple[np.ndarray, np.ndarray]] = []
+        sub = self.C[new]
+        for j, i in enumerate(new):
+            cols = sub.indices[sub.indptr[j] : sub.indptr[j + 1]]
+            vals = sub.data[sub.indptr[j] : sub.indptr[j + 1]]
+            parts = []
+            for axis in (0, 1):
+                on = (cols % STATE_DIM) // 3 == axis
+                if not np.any(on):
+                    continue
+                idx = 3 * (cols[on] // STATE_DIM) + cols[on] % 3  # in the one-axis stacked states
+                scale = float(vals[on][0])
+                key = idx.tobytes() + (vals[on] / scale).tobytes()
+                column = self._pattern.get(key)
+                if column is None:
+                    column = self._pattern[key] = self.R.shape[1] + len(forces)
+                    forces.append((idx, vals[on] / scale))
+                parts.append((axis, column, scale))
+            self._parts[i] = parts
+        if forces:
+            force = np.zeros((3 * self.T, len(forces)))
+            for c, (idx, val) in enumerate(forces):
+                force[idx, c] = val
+            st, _ = self.factor.solve(force.reshape(1, self.T, 3, len(forces)), refine=0)
+            self.R = np.concatenate([self.R, st[0].reshape(3 * self.T, len(forces))], axis=1)
+
+    def sigma(self, state_rows: np.ndarray) -> np.ndarray:
+        """``Sigma = C_S H^-1 C_S'`` of ``state_rows``, symmetrised."""
+        rows = state_rows.tolist()
+        self._add([i for i in rows if i not in self._parts])
+        k = len(rows)
+        resp = np.zeros((2, 3 * self.T, k))
+        for j, i in enumerate(rows):
+            for axis, column, scale in self._parts[i]:
+                resp[axis, :, j] = scale * self.R[:, column]
+        sub = self.C[state_rows].tocoo()
+        axis = (sub.col % STATE_DIM) // 3
+        idx = 3 * (sub.col // STATE_DIM) + sub.col % 3
+        sigma = np.zeros((k, k))
+        for a in (0, 1):
+            on = axis == a
+            part = sp.csr_matrix((sub.data[on], (sub.row[on], idx[on])), shape=(k, 3 * self.T))
+            sigma += part @ resp[a]
+        return 0.5 * (sigma + sigma.T)
+
+    def apply(self, state_rows: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The states and whitened noise, both ``(6 T,)``, of ``H^-1 C_S' w``: one refined solve."""
+        if state_rows.size == 0:
+            zero = np.zeros(STATE_DIM * self.T)
+            return zero, zero.copy()
+        push = (self.C[state_rows].T @ w).reshape(self.T, 2, 3)
+        st, nz = self.factor.solve(np.moveaxis(push, 1, -1)[None])
+        return _stack(st[0]).ravel(), _stack(nz[0]).ravel()
+
+
+class CondensedQP:
+    """The condensed constrained M-step of one platform over one horizon (module docstring).
+
+    Parameters
+    ----------
+    model, x0, layout
+        The motion model, the platform's start ``(6,)`` and the layout of its constrained QP.
+    """
+
+    def __init__(self, model: MotionModel, x0: np.ndarray, layout: QPLayout) -> None:
+        self.layout = layout
+        self.T = layout.T
+        self.smoother = BandedSmoother(model.F3, model.Q3, np.array([1.0, 0.0, 0.0]), self.T, 1)
+        self.x0 = np.stack([x0[0:3], x0[3:6]], axis=-1)[None]  # (1, 3, 2)
+        self._rows: _Rows | None = None
+        self._extra: ExtraRows | None = None
+        #: The units that bound the last answer to the current rows.
+        self._bound = np.zeros(0, dtype=int)
+
+    def solve(
+        self,
+        extra: ExtraRows,
+        W: np.ndarray,
+        WZ: np.ndarray,
+        r: float,
+        session_class: type[solvers.QPSession],
+        options: dict[str, Any],
+        exact: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> solvers.QPSolution | None:
+        """The M-step's solution vector in the full QP's layout, or ``None`` if the condensed solve did
+        not succeed (the caller then solves the full QP).
+
+        ``exact`` is the unconstrained optimum's states and whitened noise, both ``(T, 6)``, where the
+        caller has them (solved here otherwise).
+        """
+        if extra is not self._extra:
+            shape = None if self._extra is None else [(c.kind, c.dim) for c in self._extra.cones]
+            if shape != [(c.kind, c.dim) for c in extra.cones]:
+                # Rows of another shape: the last answer's binding units say nothing about them. (Rows
+                # of the same shape, such as visits moved to other steps, keep them as a first guess.)
+                self._bound = np.zeros(0, dtype=int)
+            self._extra, self._rows = extra, _Rows(extra, self.layout)
+        rows = self._rows
+        assert rows is not None
+        try:
+            factor = self.smoother.factor(r, W[None])
+            if exact is None:
+                force = np.zeros((1, self.T, 3, 2))
+                force[0, :, 0, :] = WZ / r
+                exact = tuple(_stack(a[0]) for a in factor.solve(force, self.x0))  # type: ignore[assignment]
+        except solvers.ProblemError:
+            return None
+        assert exact is not None
+        X0, U0 = exact[0].ravel(), exact[1].ravel()
+        margin = rows.units.margin(rows.b - rows.C @ X0)
+        # Carried over: the units that bound the last answer and the worst violations now; afresh:
+        # every unit the unconstrained optimum violates.
+        first = _worst(margin, self._bound, WORST if self._bound.size else 0.0)
+        units = np.union1d(np.union1d(rows.always, first), self._bound)
+        responses = _Responses(rows.C, factor, self.T)
+        iterations = 0
+        for _ in range(MAX_ROUNDS):
+            try:
+                answer = self._round(rows, units, responses, session_class, options, X0)
+                if answer is None:
+                    return None
+                sol, w, state_rows, slack = answer
+                dX, dU = responses.apply(state_rows, w)
+            except solvers.QPError:
+                return None
+            X, U = X0 + dX, U0 + dU
+            iterations += sol.iterations
+            margin = rows.units.margin(rows.b - rows.C @ X - rows.E @ slack)
+            missed = _worst(margin, units, 0.0)
+            if missed.size == 0:
+                self._bound = units[margin[units] < BOUND]
+                return solvers.QPSolution(
+                    status=sol.status,
+                    backend=sol.backend,
+                    raw_status=sol.raw_status,
+                    x=self._vector(X, U, slack),
+                    iterations=iterations,
+                    info={"condensed": {"rows": int(state_rows.size), "units": int(units.size)}},
+                )
+            units = np.union1d(units, missed)
+        return None
+
+    def _round(
+        self,
+        rows: _Rows,
+        units: np.ndarray,
+        responses: _Responses,
+        session_class: type[solvers.QPSession],
+        options: dict[str, Any],
+        X0: np.ndarray,
+    ) -> tuple[solvers.QPSolution, np.ndarray, np.ndarray, np.ndarray] | None:
+        """Solve the small QP of the rows of ``units``: the backend's solution, ``w`` and the rows it
+        belongs to, and the full slack vector; ``None`` if the backend did not solve it."""
+        E = rows.E
+        picked = rows.units.rows(units)
+        E_picked = E[picked]
+        slacks = np.unique(E_picked.indices)
+        own = rows.slack_unit[slacks]
+        own = own[(own >= 0) & ~np.isin(own, units)]
+        if own.size:  # the slacks' own rows s >= 0
+            units = np.union1d(units, own)
+            picked = rows.units.rows(units)
+            E_picked = E[picked]
+        on_state = rows.has_state[picked]
+        state_rows = picked[on_state]
+        k, p = state_rows.size, slacks.size
+        if k > MAX_ROWS:
+            return None
+        if k + p == 0:  # no row in the working set: the unconstrained optimum, exact
+            none = solvers.QPSolution(solvers.Status.OPTIMAL, "banded", "exact", x=np.zeros(0))
+            return none, np.zeros(0), state_rows, np.zeros(E.shape[1])
+        C_picked = rows.C[picked]
+        sigma = responses.sigma(state_rows)
+        diag = np.diag(sigma)
+        d = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), 1.0)
+        P = np.zeros((k + p, k + p))
+        P[:k, :k] = d[:, None] * sigma * d[None, :]
+        q = np.zeros(k + p)
+        assert self._extra is not None
+        q[k:] = self._extra.slack_cost[slacks]
+        A = np.zeros((picked.size, k + p))
+        A[on_state, :k] = sigma * d[None, :]
+        A[:, k:] = E_picked[:, slacks].toarray()
+        problem = solvers.QPProblem(
+            P=sp.csc_matrix(P),
+            q=q,
+            A=sp.csc_matrix(A),
+            b=rows.b[picked] - C_picked @ X0,
+            cones=tuple(rows.units.cones(units)),
+        )
+        try:
+            sol = session_class(problem, **options).solve()
+        except solvers.SettingsError:
+            return None
+        if not sol.ok or sol.x is None:
+            return None
+        slack = np.zeros(E.shape[1])
+        slack[slacks] = sol.x[k:]
+        return sol, d * sol.x[:k], state_rows, slack
+
+    def _vector(self, X: np.ndarray, U: np.ndarray, slack: np.ndarray) -> np.ndarray:
+        """The full QP's variable vector: per step ``[x_t / units, u_t]``, then the slacks."""
+        body = np.empty((self.T, BLOCK))
+        body[:, :STATE_DIM] = X.reshape(self.T, STATE_DIM) / self.layout.units
+        body[:, STATE_DIM:] = U.reshape(self.T, STATE_DIM)
+        return np.concatenate([body.ravel(), slack])
+
+
+def _worst(margin: np.ndarray, exclude: np.ndarray, fraction: float) -> np.ndarray:
+    """The units outside ``exclude`` violated by more than :data:`MET` and by at least ``fraction``
+    times the worst of them (none if none is violated)."""
+    violation = -margin
+    violation[exclude] = 0.0
+    worst = float(violation.max(initial=0.0))
+    if worst <= MET:
+        return np.zeros(0, dtype=int)
+    return np.flatnonzero(violation >= max(fraction * worst, MET))
+
+
+def _stack(per_axis: np.ndarray) -> np.ndarray:
+    """``(T, 3, 2)`` per-axis states as ``(T, 6)`` ``[px, vx, ax, py, vy, ay]``."""
+    return np.concatenate([per_axis[..., 0], per_axis[..., 1]], axis=1)

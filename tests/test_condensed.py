@@ -1,0 +1,206 @@
+"""Condensed constrained M-steps (:mod:`pmht_opt.mstep.condensed`): the full QP's optimum, from a small QP.
+
+Every test compares the condensed answer with an independent one: the full QP through the same backend
+(``condense`` off), a dense solve of the optimality conditions, or the exact smoother.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pmht_opt as po
+from pmht_opt.mstep import MStepData, make_mstep, mstep_objective
+from pmht_opt.mstep.condensed import CondensedQP
+from pmht_opt.verify import tolerance
+from solvers import ProblemError
+from solvers.banded import BandedSmoother
+
+FULL = {"condense": False}
+
+
+def weights(scenario: po.Scenario, seed: int, zero_fraction: float = 0.5) -> MStepData:
+    """Random weights pulling the platforms across the area (an M-step with fast, long moves)."""
+    rng = np.random.default_rng(seed)
+    T, M = scenario.horizon, scenario.n_platforms
+    W = rng.uniform(0.0, 2.0, (T, M))
+    W[rng.uniform(size=(T, M)) < zero_fraction] = 0.0
+    return MStepData(W=W, WZ=W[..., None] * rng.uniform(-1.0, 11.0, (T, M, 2)), r=scenario.r)
+
+
+def top_speed(states: np.ndarray) -> float:
+    return float(np.max(np.hypot(states[:, 1:, 1], states[:, 1:, 4])))
+
+
+def constraint_sets(scenario: po.Scenario, free: np.ndarray) -> dict[str, list[po.Constraint]]:
+    vmax = 0.6 * top_speed(free)
+    return {
+        "speed+area": [po.SpeedLimit(vmax), po.AreaBounds(0, 10, 0, 10)],
+        "soft speed": [po.SpeedLimit(0.5 * vmax, soft=True, weight=1.0)],
+        "terminal": [po.Terminal(velocity=(0.0, 0.0), position=(5.0, 5.0), radius=0.5)],
+        "terminal point": [po.Terminal(position=(5.0, 5.0))],
+        "accel": [po.AccelLimit(0.5 * float(np.max(np.abs(free[:, 1:, [2, 5]]))))],
+    }
+
+
+def cost(scenario: po.Scenario, states: np.ndarray, data: MStepData) -> float:
+    return mstep_objective(scenario.model, states, data.W, data.WZ, data.r)
+
+
+@pytest.mark.parametrize("case", ["speed+area", "soft speed", "terminal", "terminal point", "accel"])
+def test_condensed_and_full_qp_reach_the_same_optimum(scenario_a: po.Scenario, case: str) -> None:
+    data = weights(scenario_a, 3)
+    free = po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "banded")
+    cons = constraint_sets(scenario_a, free)[case]
+    condensed = make_mstep(scenario_a, "clarabel", constraints=tuple(cons))
+    full = make_mstep(scenario_a, "clarabel", FULL, constraints=tuple(cons))
+    ctx = po.constraints.ConstraintContext(scenario_a, free)
+    active = tuple(range(len(cons)))
+    a = condensed.solve(MStepData(data.W, data.WZ, data.r, ctx, active))
+    b = full.solve(MStepData(data.W, data.WZ, data.r, ctx, active))
+    assert a.constrained  # the rows bind: otherwise both are the exact smoother's answer
+    for con in cons:
+        if not con.soft:
+            assert con.violation(a.states, ctx).max_violation <= tolerance("clarabel", con, scenario_a)
+    ca, cb = cost(scenario_a, a.states, data), cost(scenario_a, b.states, data)
+    # One optimum: the costs agree to the backends' tolerance (1e-10 of the condensed QP, 1e-8 of the full).
+    assert ca == pytest.approx(cb, rel=1e-8, abs=1e-8)
+    # The positions agree as far as the objective's curvature fixes them.
+    assert np.max(np.abs(a.states[:, :, [0, 3]] - b.states[:, :, [0, 3]])) < 1e-4
+    # Above the unconstrained optimum, as constraints must be.
+    assert ca >= cost(scenario_a, free, data) - 1e-9 * abs(ca)
+
+
+def test_a_terminal_point_matches_a_dense_solve_of_the_optimality_conditions() -> None:
+    """One platform, 40 steps, its end fixed: the QP in the process noise ``u`` is dense and well
+    conditioned (the positions are linear in ``u``), so a dense KKT solve is an exact reference."""
+    sc = po.Scenario(locales=[[3.0, 1.0], [1.0, 4.0]], starts=[[0.0, 0.0]], horizon=40, r=0.05)
+    T, model = sc.horizon, sc.model
+    rng = np.random.default_rng(2)
+    W = rng.uniform(0.0, 1.0, (T, 1))
+    WZ = W[..., None] * rng.uniform(0.0, 5.0, (T, 1, 2))
+    target = np.array([4.0, 3.0])
+    got = po.solve_mstep(sc, W, WZ, sc.r, "clarabel", [po.Terminal(position=target)])
+    # x_t = F^t x_0 + sum_{s <= t} F^(t-s) L u_s: positions as an affine map of u (6 T).
+    F, L = model.F, model.L
+    G = np.zeros((T, 6, 6 * T))
+    c = np.zeros((T, 6))
+    x, acc = sc.initial_states[0], np.zeros((6, 6 * T))
+    for t in range(T):
+        x = F @ x
+        acc = F @ acc
+        acc[:, 6 * t : 6 * t + 6] += L
+        G[t], c[t] = acc, x
+    Pmat = G[:, [0, 3], :]  # (T, 2, 6T)
+    H = np.eye(6 * T) + np.einsum("t,tai,taj->ij", W[:, 0] / sc.r, Pmat, Pmat)
+    g = np.einsum("ta,tai->i", WZ[:, 0] / sc.r - W[:, 0:1] / sc.r * c[:, [0, 3]], Pmat)
+    A = Pmat[-1]
+    K = np.block([[H, A.T], [A, np.zeros((2, 2))]])
+    sol = np.linalg.solve(K, np.concatenate([g, target - c[-1, [0, 3]]]))
+    positions = np.einsum("tai,i->ta", Pmat, sol[: 6 * T]) + c[:, [0, 3]]
+    np.testing.assert_allclose(got[0, 1:, [0, 3]].T, positions, atol=1e-7)
+    np.testing.assert_allclose(got[0, -1, [0, 3]], target, atol=1e-9)
+
+
+def test_the_working_set_does_not_change_the_answer(scenario_a: po.Scenario) -> None:
+    """Started afresh (every unit the free optimum violates), from one unit (rounds add the rest) or
+    from the last answer's binding units: one optimum."""
+    import solvers
+    from pmht_opt.constraints import ConstraintContext
+    from pmht_opt.mstep.rows import RowBuilder, assemble
+
+    data = weights(scenario_a, 4)
+    free = po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "banded")
+    cons = (po.SpeedLimit(0.7 * top_speed(free)), po.AreaBounds(-0.5, 10.5, -0.5, 10.5))
+    rows = RowBuilder(cons, conic=True).rows(ConstraintContext(scenario_a, free), (0, 1))
+    qp = make_mstep(scenario_a, "clarabel", constraints=cons).blocks[0].qp(scenario_a.horizon)
+    extra = assemble(rows[0].items, qp.layout.n, qp.col_map, units=qp.layout.units, margin=qp.margin)
+    clarabel = solvers.get_session_class("clarabel")
+    answers, sizes = [], []
+    for start in ("afresh", "one unit", "last"):
+        cqp = CondensedQP(scenario_a.model, scenario_a.initial_states[0], qp.layout)
+        first = cqp.solve(extra, data.W[:, 0], data.WZ[:, 0], data.r, clarabel, {})
+        assert first is not None
+        if start == "one unit":
+            assert cqp._rows is not None
+            margin = cqp._rows.units.margin(cqp._rows.b - cqp._rows.C @ free[0, 1:].ravel())
+            cqp._bound = np.array([int(np.argmin(margin))])
+        sol = first
+        if start != "afresh":
+            sol = cqp.solve(extra, data.W[:, 0], data.WZ[:, 0], data.r, clarabel, {})
+        assert sol is not None and sol.ok and sol.x is not None
+        answers.append(qp.layout.states(sol.x[: qp.layout.n])[0][:, [0, 3]])
+        sizes.append(sol.info["condensed"]["units"])
+    assert sizes[1] < sizes[0]  # the starts really differ
+    assert np.max(np.abs(answers[0] - answers[1])) < 1e-5
+    assert np.max(np.abs(answers[0] - answers[2])) < 1e-5
+
+
+def test_infeasible_rows_are_named_as_with_the_full_qp(scenario_a: po.Scenario) -> None:
+    data = weights(scenario_a, 5)
+    cons = [po.SpeedLimit(1e-4), po.Terminal(position=(9.0, 9.0))]
+    for settings in ({}, FULL):
+        with pytest.raises(po.InfeasibleError, match=r"SpeedLimit|Terminal"):
+            po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "clarabel", cons, settings=settings)
+
+
+def test_condense_must_be_a_bool(scenario_a: po.Scenario) -> None:
+    with pytest.raises(po.ConfigError, match="condense"):
+        make_mstep(scenario_a, "clarabel", {"condense": "yes"})
+
+
+def test_factor_solves_the_smoother_and_the_response_to_a_force() -> None:
+    sc = po.paper_scenario("A", seed=1, horizon=60)
+    m = sc.model
+    T = sc.horizon
+    rng = np.random.default_rng(0)
+    W = rng.random(T) * (rng.random(T) < 0.5)
+    WZ = W[:, None] * rng.uniform(0, 10, (T, 2))
+    r = 0.1
+    bs = BandedSmoother(m.F3, m.Q3, [1.0, 0.0, 0.0], T, 1)
+    x0 = np.stack([sc.initial_states[0, 0:3], sc.initial_states[0, 3:6]], -1)[None]
+    ref = bs.solve(r, x0, (WZ / np.where(W > 0, W, 1.0)[:, None])[None], W[None])
+    factor = bs.factor(r, W[None])
+    force = np.zeros((1, T, 3, 2))
+    force[0, :, 0, :] = WZ / r
+    states, noise = factor.solve(force, x0)
+    np.testing.assert_allclose(states, ref.means[:, 1:], rtol=0, atol=1e-12 * np.abs(ref.means).max())
+    np.testing.assert_allclose(noise, ref.noise, rtol=0, atol=1e-12 * max(1.0, np.abs(ref.noise).max()))
+    # H^-1 c against the information form, well conditioned at 60 steps.
+    Qi, F = np.linalg.inv(m.Q3), m.F3
+    H = np.zeros((3 * T, 3 * T))
+    for t in range(T):
+        i = slice(3 * t, 3 * t + 3)
+        H[i, i] += Qi
+        if t:
+            j = slice(3 * t - 3, 3 * t)
+            H[j, j] += F.T @ Qi @ F
+            H[i, j] -= Qi @ F
+            H[j, i] -= F.T @ Qi
+        H[3 * t, 3 * t] += W[t] / r
+    c = rng.standard_normal((1, T, 3, 1))
+    got = factor.solve(c)[0].ravel()
+    # Backward stable: H got = c to the rounding of H's entries (H itself is too ill-conditioned, about
+    # 2e11, for a forward comparison with a dense solve to say more than 1e-5).
+    residual = np.abs(H @ got - c.ravel()).max()
+    assert residual <= 1e-14 * np.abs(H).max() * np.abs(got).max()
+    with pytest.raises(ProblemError, match="forcing"):
+        factor.solve(np.zeros((1, T, 3)))
+    with pytest.raises(ProblemError, match="weight"):
+        bs.factor(r, -np.ones((1, T)))
+
+
+def test_constrained_plans_agree_with_the_full_qp(scenario_a: po.Scenario) -> None:
+    """A whole annealed plan under a speed limit and area bounds: the same plan to the M-steps'
+    tolerance, both meeting their constraints on the returned positions."""
+    sc = po.paper_scenario("A", seed=2, horizon=150)
+    free = po.plan_pmht(sc, po.PMHTConfig(max_iter=30))
+    cons = [po.SpeedLimit(0.7 * free.max_speed), po.AreaBounds(0, 10, 0, 10)]
+    a = po.plan_pmht(sc, po.PMHTConfig(solver="clarabel", constraints=cons, max_iter=30))
+    full = po.PMHTConfig(solver="clarabel", constraints=cons, max_iter=30, solver_settings=FULL)
+    b = po.plan_pmht(sc, full)
+    assert a.max_violation <= 1e-9 and b.max_violation <= 1e-9
+    assert abs(a.total_distance - b.total_distance) < 1e-4 * b.total_distance
+    # Where a limit binds, the M-step cost is flat to 1e-10 along moves of positions of 1e-4: the
+    # two answers are equally optimal, and the iterates then differ by that much.
+    np.testing.assert_allclose(a.history.objective, b.history.objective, rtol=1e-6)
