@@ -49,6 +49,7 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import solve_triangular
 
 import solvers
 from pmht_opt.model import STATE_DIM, MotionModel
@@ -356,19 +357,24 @@ class CondensedQP:
             none = solvers.QPSolution(solvers.Status.OPTIMAL, "banded", "exact", x=np.zeros(0))
             return none, np.zeros(0), state_rows, np.zeros(E.shape[1])
         C_picked = rows.C[picked]
+        # The cost 1/2 w' Sigma w written as 1/2 |v|^2 with v = R D^-1 w, R'R = D Sigma D (D the
+        # Jacobi scaling): an identity Hessian and triangular rows keep the small QP's KKT system sparse.
         sigma = responses.sigma(state_rows)
         diag = np.diag(sigma)
         d = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), 1.0)
-        P = np.zeros((k + p, k + p))
-        P[:k, :k] = d[:, None] * sigma * d[None, :]
+        try:
+            R = np.linalg.cholesky(d[:, None] * sigma * d[None, :]).T
+        except np.linalg.LinAlgError:  # rows that depend on each other: the full QP takes them
+            return None
+        P = sp.diags(np.concatenate([np.ones(k), np.zeros(p)]), format="csc")
         q = np.zeros(k + p)
         assert self._extra is not None
         q[k:] = self._extra.slack_cost[slacks]
         A = np.zeros((picked.size, k + p))
-        A[on_state, :k] = sigma * d[None, :]
+        A[on_state, :k] = R.T / d[:, None]
         A[:, k:] = E_picked[:, slacks].toarray()
         problem = solvers.QPProblem(
-            P=sp.csc_matrix(P),
+            P=P,
             q=q,
             A=sp.csc_matrix(A),
             b=rows.b[picked] - C_picked @ X0,
@@ -382,7 +388,7 @@ class CondensedQP:
             return None
         slack = np.zeros(E.shape[1])
         slack[slacks] = sol.x[k:]
-        return sol, d * sol.x[:k], state_rows, slack
+        return sol, d * solve_triangular(R, sol.x[:k]), state_rows, slack
 
     def _vector(self, X: np.ndarray, U: np.ndarray, slack: np.ndarray) -> np.ndarray:
         """The full QP's variable vector: per step ``[x_t / units, u_t]``, then the slacks."""
