@@ -207,3 +207,17 @@ def test_constrained_plans_agree_with_the_full_qp(scenario_a: po.Scenario) -> No
     # Where a limit binds, the M-step cost is flat to 1e-10 along moves of positions of 1e-4: the
     # two answers are equally optimal, and the iterates then differ by that much.
     np.testing.assert_allclose(a.history.objective, b.history.objective, rtol=1e-6)
+
+
+def test_a_limit_binding_everywhere_goes_to_the_full_qp() -> None:
+    """A speed limit that binds at most steps: a condensed QP of that many rows is past its cap (or,
+    without the cap, ends "almost solved" at its tight tolerances), so every M-step is the full QP's
+    and the plan equals the one without condensing to the last bit."""
+    sc = po.paper_scenario("A", seed=0, horizon=200)
+    cons = [po.SpeedLimit(0.02)]
+    a = po.plan_pmht(sc, po.PMHTConfig(solver="clarabel", constraints=cons, max_iter=12))
+    b = po.plan_pmht(
+        sc, po.PMHTConfig(solver="clarabel", constraints=cons, max_iter=12, solver_settings=FULL)
+    )
+    np.testing.assert_array_equal(a.states, b.states)
+    assert a.max_violation <= 1e-9

@@ -58,7 +58,8 @@ from pmht_opt.mstep.rows import ExtraRows, merge_cones
 from solvers.banded import BandedFactor, BandedSmoother
 
 #: A unit outside the working set counts as met when its violation (``-s`` of a linear row,
-#: ``||s_1..|| - s_0`` of a cone, in the rows' own scale: cones have radius 1) is at most this.
+#: ``||s_1..|| - s_0`` of a cone; cones have radius 1) is at most this times the rows' largest bound
+#: (at least 1).
 MET = 1e-9
 #: Of the units the unconstrained optimum violates, those violated by at least this fraction of the
 #: worst start the working set, beside the units that bound the platform's last answer to the same rows.
@@ -156,11 +157,12 @@ class _Rows:
         on_state = np.zeros(self.units.start.size, dtype=bool)
         on_state[self.units.of_row[self.has_state]] = True
         self.slack_unit = np.full(extra.n_slack, -1)
-        for u in np.flatnonzero(~on_state):
-            cols = self.E[self.units.rows(np.array([u]))].indices
-            if cols.size == 1:
-                self.slack_unit[cols[0]] = u
+        own = np.flatnonzero(~on_state[self.units.of_row])
+        own = own[np.diff(self.E.indptr)[own] == 1]
+        self.slack_unit[self.E.indices[self.E.indptr[own]]] = self.units.of_row[own]
         self.always = np.flatnonzero(self.units.kind == 0)
+        #: The rows' scale: a violation below :data:`MET` times it is rounding.
+        self.scale = max(1.0, float(np.max(np.abs(self.b), initial=0.0)))
 
 
 class _Responses:
@@ -275,15 +277,9 @@ class CondensedQP:
         ``exact`` is the unconstrained optimum's states and whitened noise, both ``(T, 6)``, where the
         caller has them (solved here otherwise).
         """
-        if extra is not self._extra:
-            shape = None if self._extra is None else [(c.kind, c.dim) for c in self._extra.cones]
-            if shape != [(c.kind, c.dim) for c in extra.cones]:
-                # Rows of another shape: the last answer's binding units say nothing about them. (Rows
-                # of the same shape, such as visits moved to other steps, keep them as a first guess.)
-                self._bound = np.zeros(0, dtype=int)
-            self._extra, self._rows = extra, _Rows(extra, self.layout)
-        rows = self._rows
-        assert rows is not None
+        rows = self._use(extra)
+        if rows.has_state[rows.units.rows(self._bound)].sum() > MAX_ROWS:
+            return None  # the last answer was bound by more rows than a condensed QP should take
         try:
             factor = self.smoother.factor(r, W[None])
             if exact is None:
@@ -297,7 +293,7 @@ class CondensedQP:
         margin = rows.units.margin(rows.b - rows.C @ X0)
         # Carried over: the units that bound the last answer and the worst violations now; afresh:
         # every unit the unconstrained optimum violates.
-        first = _worst(margin, self._bound, WORST if self._bound.size else 0.0)
+        first = _worst(margin, self._bound, WORST if self._bound.size else 0.0, rows.scale)
         units = np.union1d(np.union1d(rows.always, first), self._bound)
         responses = _Responses(rows.C, factor, self.T)
         iterations = 0
@@ -313,7 +309,7 @@ class CondensedQP:
             X, U = X0 + dX, U0 + dU
             iterations += sol.iterations
             margin = rows.units.margin(rows.b - rows.C @ X - rows.E @ slack)
-            missed = _worst(margin, units, 0.0)
+            missed = _worst(margin, units, 0.0, rows.scale)
             if missed.size == 0:
                 self._bound = units[margin[units] < BOUND]
                 return solvers.QPSolution(
@@ -326,6 +322,25 @@ class CondensedQP:
                 )
             units = np.union1d(units, missed)
         return None
+
+    def observe(self, extra: ExtraRows, states: np.ndarray) -> None:
+        """Learn the units that bind ``states`` (``(T, 6)``, the full QP's answer to ``extra``): the
+        next condensed solve starts from them, or is not tried if they are too many."""
+        rows = self._use(extra)
+        margin = rows.units.margin(rows.b - rows.C @ states.ravel())
+        self._bound = np.flatnonzero(margin < BOUND)
+
+    def _use(self, extra: ExtraRows) -> _Rows:
+        """The split rows of ``extra``, made when the rows change."""
+        if extra is not self._extra:
+            shape = None if self._extra is None else [(c.kind, c.dim) for c in self._extra.cones]
+            if shape != [(c.kind, c.dim) for c in extra.cones]:
+                # Rows of another shape: the last answer's binding units say nothing about them. (Rows
+                # of the same shape, such as visits moved to other steps, keep them as a first guess.)
+                self._bound = np.zeros(0, dtype=int)
+            self._extra, self._rows = extra, _Rows(extra, self.layout)
+        assert self._rows is not None
+        return self._rows
 
     def _round(
         self,
@@ -398,15 +413,16 @@ class CondensedQP:
         return np.concatenate([body.ravel(), slack])
 
 
-def _worst(margin: np.ndarray, exclude: np.ndarray, fraction: float) -> np.ndarray:
-    """The units outside ``exclude`` violated by more than :data:`MET` and by at least ``fraction``
-    times the worst of them (none if none is violated)."""
+def _worst(margin: np.ndarray, exclude: np.ndarray, fraction: float, scale: float) -> np.ndarray:
+    """The units outside ``exclude`` violated by more than :data:`MET` times the rows' ``scale`` and
+    by at least ``fraction`` times the worst of them (none if none is violated)."""
     violation = -margin
     violation[exclude] = 0.0
     worst = float(violation.max(initial=0.0))
-    if worst <= MET:
+    least = MET * scale
+    if worst <= least:
         return np.zeros(0, dtype=int)
-    return np.flatnonzero(violation >= max(fraction * worst, MET))
+    return np.flatnonzero(violation >= max(fraction * worst, least))
 
 
 def _stack(per_axis: np.ndarray) -> np.ndarray:

@@ -311,6 +311,10 @@ class HorizonQP:
             sol = self.condensed.solve(self.extra, W, WZ, r, self.session_class, self.state.condensed, exact)
             if sol is not None:
                 return sol
+            full = self._solve_full(W, WZ, r, probe, budget)
+            if full.ok and full.x is not None:
+                self.condensed.observe(self.extra, self.states(full.x))
+            return full
         return self._solve_full(W, WZ, r, probe, budget)
 
     def _solve_full(
