@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import pmht_opt as po
 from pmht_opt.mstep import MStepData, make_mstep, mstep_objective
@@ -139,12 +141,12 @@ def test_the_working_set_does_not_change_the_answer(scenario_a: po.Scenario) -> 
 def test_infeasible_rows_are_named_as_with_the_full_qp(scenario_a: po.Scenario) -> None:
     data = weights(scenario_a, 5)
     cons = [po.SpeedLimit(1e-4), po.Terminal(position=(9.0, 9.0))]
-    for settings in ({}, FULL):
+    for options in ({}, FULL):
         with pytest.raises(
             po.InfeasibleError,
             match=r"constraints SpeedLimit\(0.0001\), Terminal\(position\) cannot all be met",
         ):
-            po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "clarabel", cons, settings=settings)
+            po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "clarabel", cons, settings=options)
 
 
 def test_condense_must_be_a_bool(scenario_a: po.Scenario) -> None:
@@ -221,3 +223,29 @@ def test_a_limit_binding_everywhere_goes_to_the_full_qp() -> None:
     )
     np.testing.assert_array_equal(a.states, b.states)
     assert a.max_violation <= 1e-9
+
+
+@settings(max_examples=12, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    speed=st.floats(0.3, 0.95),
+    wall=st.floats(0.0, 2.0),
+    zeros=st.floats(0.0, 0.9),
+)
+def test_condensed_optimum_property(seed: int, speed: float, wall: float, zeros: float) -> None:
+    """Random weights, a speed limit at a random fraction of the free top speed and area bounds at a
+    random inset (never past a start): the condensed answer meets every constraint and costs what
+    the full QP's does."""
+    sc = po.paper_scenario("A", seed=seed % 50, horizon=120)
+    data = weights(sc, seed, zeros)
+    free = po.solve_mstep(sc, data.W, data.WZ, data.r, "banded")
+    starts = sc.initial_states[:, [0, 3]]
+    lo, hi = min(wall, float(starts.min())), max(10 - wall, float(starts.max()))  # the starts inside
+    cons = (po.SpeedLimit(speed * top_speed(free)), po.AreaBounds(lo, hi, lo, hi))
+    ctx = po.constraints.ConstraintContext(sc, free)
+    step = MStepData(data.W, data.WZ, data.r, ctx, (0, 1))
+    a = make_mstep(sc, "clarabel", constraints=cons).solve(step)
+    b = make_mstep(sc, "clarabel", FULL, constraints=cons).solve(step)
+    for con in cons:
+        assert con.violation(a.states, ctx).max_violation <= tolerance("clarabel", con, sc)
+    assert cost(sc, a.states, data) == pytest.approx(cost(sc, b.states, data), rel=1e-8, abs=1e-8)
