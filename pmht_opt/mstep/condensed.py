@@ -73,6 +73,8 @@ MAX_ROUNDS = 16
 #: its rows, and past about this many (a limit binding over long stretches) the sparse full QP is
 #: cheaper, so it is solved instead.
 MAX_ROWS = 160
+#: Most M-steps left to the full QP after condensed solves that did not succeed.
+SKIP_MAX = 15
 
 
 @dataclass
@@ -260,6 +262,9 @@ class CondensedQP:
         self._extra: ExtraRows | None = None
         #: The units that bound the last answer to the current rows.
         self._bound = np.zeros(0, dtype=int)
+        #: Condensed solves given up in a row, and solves still to leave to the full QP.
+        self._failures = 0
+        self._skip = 0
 
     def solve(
         self,
@@ -278,8 +283,30 @@ class CondensedQP:
         caller has them (solved here otherwise).
         """
         rows = self._use(extra)
+        if self._skip:
+            self._skip -= 1
+            return None
         if rows.has_state[rows.units.rows(self._bound)].sum() > MAX_ROWS:
             return None  # the last answer was bound by more rows than a condensed QP should take
+        answer = self._solve(rows, W, WZ, r, session_class, options, exact)
+        # After failures in a row, wait 1, 3, 7, ... M-steps (at most SKIP_MAX) before trying again:
+        # rows that defeat condensing (long stretches of rows at neighbouring steps, whose Sigma is
+        # singular to working precision) tend to stay, and each attempt costs more than its full QP.
+        self._failures = 0 if answer is not None else self._failures + 1
+        self._skip = min(2**self._failures - 1, SKIP_MAX)
+        return answer
+
+    def _solve(
+        self,
+        rows: _Rows,
+        W: np.ndarray,
+        WZ: np.ndarray,
+        r: float,
+        session_class: type[solvers.QPSession],
+        options: dict[str, Any],
+        exact: tuple[np.ndarray, np.ndarray] | None,
+    ) -> solvers.QPSolution | None:
+        """:meth:`solve` once it is tried."""
         try:
             factor = self.smoother.factor(r, W[None])
             if exact is None:
