@@ -24,22 +24,27 @@ that affine set ``J(X* + B w) = J(X*) + 1/2 w' Sigma w`` with ``B = H^-1 C_S'`` 
     \quad\text{s.t.}\quad (b_S - C_S X^*) - \Sigma w - E_S s_S \in \mathcal K_S,
 
 a QP with one variable per row of ``S`` (and its slacks), whatever the horizon. ``B`` takes one
-solve of the exact smoother's factorised KKT system per row and axis
+solve of the exact smoother's factorised KKT system per row pattern and axis
 (:class:`solvers.banded.BandedFactor`): ``H`` is never formed, so its conditioning (entries near
-1e10 beside 1e2) never enters.
+1e10 beside 1e2) never enters. The backend is given the cost as ``1/2 |v|^2`` with ``v = R D^-1 w``,
+``R'R = D Sigma D`` (``D`` the Jacobi scaling): an identity Hessian and triangular rows, which keep
+its KKT system sparse; rows that depend on each other (``Sigma`` singular) are left to the full QP.
 
 **Working set.** The problem with the rows ``S`` is a relaxation of the whole one; if its optimum
-meets every other row, it is the whole problem's optimum. ``S`` starts with the equalities, the
-units the unconstrained optimum violates or comes within :data:`NEAR` of, and those that bound the
-platform's last answer to the same rows; units the answer still violates join it, and the small QP
-is solved again (at most :data:`MAX_ROUNDS` times). Speed limits and area bounds on the paper's
-scenarios bind at a handful of the 500 steps, and guaranteed visits at one step per locale, so the
-QP the backend solves has tens of variables instead of the 6000 of the full one.
+meets every other row, it is the whole problem's optimum. ``S`` starts with the equalities and the
+units that bound the platform's last answer to rows of the same shape, with those the unconstrained
+optimum violates by at least :data:`WORST` of the worst (all it violates when there is no last
+answer); units the answer still violates join it, and the small QP is solved again (at most
+:data:`MAX_ROUNDS` times). Speed limits and area bounds on the paper's scenarios bind at a handful
+of the 500 steps, and guaranteed visits at one step per locale, so the QP the backend solves has
+tens of variables instead of the 6000 of the full one.
 
 The answer is the same optimum as the full QP's, to the backend's tolerance; the two differ by that
-much (about 1e-7 in position), not bit for bit. A condensed solve that does not succeed (a status
-other than solved, or too many rounds) is given up and the full QP is solved instead, with its
-retries and infeasibility diagnosis: a failure is never reported from here.
+much, not bit for bit. A condensed solve that does not succeed (a status other than solved, too many
+rounds, more than :data:`MAX_ROWS` rows) is given up and the full QP is solved instead, with its
+retries and infeasibility diagnosis: a failure is never reported from here. The full QP's answer then
+seeds the next working set (:meth:`CondensedQP.observe`), and failures in a row leave the next few
+M-steps to the full QP without an attempt.
 """
 
 from __future__ import annotations
