@@ -41,7 +41,7 @@ from pmht_opt.verify import RTOL
 from studies.constraint_measures import measure
 from studies.options import Choices, StudyOptions, option
 from studies.report import Columns, frame, markdown_table
-from studies.trials import ERROR_COLUMNS, ITERATES, OUTCOME_CHECKS, Check, TrialTable
+from studies.trials import CONSTRAINED, ERROR_COLUMNS, OUTCOME_CHECKS, Check, TrialTable
 
 KINDS = ("A", "B", "C", "L")
 BACKENDS = ("clarabel", "osqp", "cvxpy")
@@ -259,8 +259,8 @@ TABLE = TrialTable.of(
         **OUTCOME_CHECKS,
         "slowest_mstep": Check("skip", reason="wall time"),
         "violation": Check("close", rtol=1e-3, atol=1e-9, reason="last digits of the solvers' iterates"),
-        "distance": ITERATES,
-        "excursion": ITERATES,
+        "distance": CONSTRAINED,
+        "excursion": CONSTRAINED,
     },
 )
 

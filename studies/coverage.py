@@ -42,7 +42,7 @@ from pmht_opt.scenario import Scenario, paper_scenario
 from pmht_opt.smoothed import plan_smoothed
 from studies.options import Choices, Count, Positives, RunOptions, StudyOptions, option
 from studies.report import Columns, frame, markdown_table, summarise
-from studies.trials import TIME_CHECKS, TIME_COLUMNS, TrialTable
+from studies.trials import CONSTRAINED, TIME_CHECKS, TIME_COLUMNS, TrialTable
 
 KINDS = ("A", "B", "C")
 RADII = (0.05, 0.1, 0.2, 0.3, 0.5)
@@ -130,7 +130,14 @@ RESULTS = {
     "excursion": "float",
     **TIME_COLUMNS,
 }
-TABLE = TrialTable.of("coverage", trial, RESULTS, TIME_CHECKS)
+#: The measures of a plan that its constrained M-steps' tolerance reaches.
+PLAN_MEASURES = ("distance", "max_miss", "max_acceleration", "energy", "excursion")
+TABLE = TrialTable.of(
+    "coverage",
+    trial,
+    RESULTS,
+    {**TIME_CHECKS, **dict.fromkeys(PLAN_MEASURES, CONSTRAINED)},
+)
 
 
 @dataclass(frozen=True)

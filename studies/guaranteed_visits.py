@@ -23,7 +23,7 @@ import pmht_opt as po
 from pmht_opt.result import excursion
 from studies.options import Choices, Count, Positives, StudyOptions, option
 from studies.report import Columns, frame, markdown_table
-from studies.trials import ERROR_COLUMNS, ITERATES, OUTCOME_CHECKS, TrialTable
+from studies.trials import CONSTRAINED, ERROR_COLUMNS, OUTCOME_CHECKS, TrialTable
 
 KINDS = ("A", "B", "C")
 BACKENDS = ("clarabel", "osqp", "cvxpy")
@@ -65,7 +65,10 @@ RESULTS = {
     "seconds": "float",
 }
 TABLE = TrialTable.of(
-    "guaranteed_visits", trial, RESULTS, {**OUTCOME_CHECKS, "distance": ITERATES, "extra_excursion": ITERATES}
+    "guaranteed_visits",
+    trial,
+    RESULTS,
+    {**OUTCOME_CHECKS, "distance": CONSTRAINED, "extra_excursion": CONSTRAINED},
 )
 
 

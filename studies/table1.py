@@ -45,7 +45,7 @@ from pmht_opt.result import PlanResult, excursion
 from pmht_opt.scenario import Scenario, paper_scenario
 from studies.options import Choices, Count, RunOptions, StudyOptions, Without, option
 from studies.report import EXCURSION_LIMIT, Columns, frame, markdown_table, summarise
-from studies.trials import TIME_CHECKS, TIME_COLUMNS, TrialTable
+from studies.trials import CONSTRAINED, ROUNDED_PATHS, TIME_CHECKS, TIME_COLUMNS, TrialTable
 
 #: The coverage radius the table reports (the scenarios' default sensor footprint).
 DEFAULT_RADIUS = 0.3
@@ -149,7 +149,17 @@ RESULTS = {
     "paths_5": "list?",
     "paths_20": "list?",
 }
-TABLE = TrialTable.of("table1", trial, RESULTS, TIME_CHECKS)
+TABLE = TrialTable.of(
+    "table1",
+    trial,
+    RESULTS,
+    {
+        **TIME_CHECKS,
+        "distance": CONSTRAINED,
+        "excursion": CONSTRAINED,
+        **dict.fromkeys(("paths", "paths_5", "paths_20"), ROUNDED_PATHS),
+    },
+)
 
 
 def _rounded(line: np.ndarray) -> list[list[float]]:

@@ -92,6 +92,17 @@ TIME_CHECKS: Mapping[str, Check] = {
 }
 #: A number computed from a solver's iterates: another run may differ in its last digits.
 ITERATES = Check("close", rtol=1e-6, atol=1e-9, reason="last digits of the solvers' iterates")
+#: A measure of a plan with constrained M-steps: their backends agree to their tolerances, which on the
+#: flat optima of binding limits leaves positions up to about 1e-4 apart (rows recorded before the
+#: constrained M-steps were condensed, docs/decisions.md 4.15, agree with today's code to this).
+CONSTRAINED = Check(
+    "close", rtol=1e-5, atol=1e-9, reason="constrained M-steps agree to the backends' tolerance"
+)
+#: Paths stored rounded to 1e-3 (for figures): a position moved within that tolerance may round the
+#: other way.
+ROUNDED_PATHS = Check(
+    "close", rtol=0.0, atol=2e-3, reason="paths rounded to 1e-3; constrained M-steps' tolerance"
+)
 #: The project's error a trial may end in (its class and message; ``None`` for a trial that planned)...
 ERROR_COLUMNS = {"raised": "str?", "message": "str?"}
 #: ... and how ``--verify`` treats the error's message (whose figures come from the solvers' iterates)
