@@ -63,9 +63,12 @@ from pmht_opt.mstep.units import CondensedRows
 from solvers.banded import BandedFactor, BandedSmoother
 
 #: A unit outside the working set counts as met when its violation (``-s`` of a linear row,
-#: ``||s_1..|| - s_0`` of a cone; cones have radius 1) is at most this times the rows' largest bound
-#: (at least 1).
+#: ``||s_1..|| - s_0`` of a cone, in the rows' own scale: cones have radius 1, linear rows unit
+#: normals) is at most this, plus :data:`ROUNDING` times the size of the numbers its slack is the
+#: difference of (a bound of 1e4 in a geographic frame leaves a slack's last digits at 1e-12).
 MET = 1e-9
+#: Relative rounding allowed in a slack ``b - C x`` (64 units of the last place).
+ROUNDING = 64 * float(np.finfo(float).eps)
 #: Of the units the unconstrained optimum violates, those violated by at least this fraction of the
 #: worst start the working set, beside the units that bound the platform's last answer to the same rows.
 WORST = 0.5
@@ -235,7 +238,7 @@ class CondensedQP:
         margin = rows.units.margin(rows.b - rows.C @ X0)
         # Carried over: the units that bound the last answer and the worst violations now; afresh:
         # every unit the unconstrained optimum violates.
-        first = _worst(margin, self._bound, WORST if self._bound.size else 0.0, rows.scale)
+        first = _worst(margin, self._bound, WORST if self._bound.size else 0.0, rows.size)
         units = np.union1d(np.union1d(rows.always, first), self._bound)
         responses = _Responses(rows.C, factor, self.T)
         iterations = 0
@@ -251,7 +254,7 @@ class CondensedQP:
             X, U = X0 + dX, U0 + dU
             iterations += sol.iterations
             margin = rows.units.margin(rows.b - rows.C @ X - rows.E @ slack)
-            missed = _worst(margin, units, 0.0, rows.scale)
+            missed = _worst(margin, units, 0.0, rows.size)
             if missed.size == 0:
                 self._bound = units[margin[units] < BOUND]
                 return solvers.QPSolution(
@@ -355,16 +358,16 @@ class CondensedQP:
         return np.concatenate([body.ravel(), slack])
 
 
-def _worst(margin: np.ndarray, exclude: np.ndarray, fraction: float, scale: float) -> np.ndarray:
-    """The units outside ``exclude`` violated by more than :data:`MET` times the rows' ``scale`` and
-    by at least ``fraction`` times the worst of them (none if none is violated)."""
-    violation = -margin
+def _worst(margin: np.ndarray, exclude: np.ndarray, fraction: float, size: np.ndarray) -> np.ndarray:
+    """The units outside ``exclude`` violated by more than their tolerance (:data:`MET`, and the
+    rounding of slacks formed from numbers of ``size``) and by at least ``fraction`` times the worst
+    of them (none if none is violated)."""
+    violation = -margin - (MET + ROUNDING * size)
     violation[exclude] = 0.0
     worst = float(violation.max(initial=0.0))
-    least = MET * scale
-    if worst <= least:
+    if worst <= 0.0:
         return np.zeros(0, dtype=int)
-    return np.flatnonzero(violation >= max(fraction * worst, least))
+    return np.flatnonzero(violation >= max(fraction * worst, np.finfo(float).tiny))
 
 
 def _stack(per_axis: np.ndarray) -> np.ndarray:

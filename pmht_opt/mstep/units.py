@@ -107,5 +107,6 @@ class CondensedRows:
         own = own[np.diff(self.E.indptr)[own] == 1]
         self.slack_unit[self.E.indices[self.E.indptr[own]]] = self.units.of_row[own]
         self.always = np.flatnonzero(self.units.kind == 0)
-        #: The rows' scale, their largest bound (at least 1): what rounding is measured against.
-        self.scale = max(1.0, float(np.max(np.abs(self.b), initial=0.0)))
+        #: Per unit, the largest ``|b|`` of its rows: the size of the numbers whose difference is its
+        #: slack, which bounds the slack's rounding.
+        self.size = np.maximum.reduceat(np.abs(self.b), self.units.start) if self.b.size else np.zeros(0)
