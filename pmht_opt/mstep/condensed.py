@@ -254,9 +254,13 @@ class CondensedQP:
             X, U = X0 + dX, U0 + dU
             iterations += sol.iterations
             margin = rows.units.margin(rows.b - rows.C @ X - rows.E @ slack)
+            if _missed_in(margin[units], rows.units.kind[units], rows.size[units]):
+                # A row of the working set is missed on the path itself (the small QP's Sigma is
+                # formed without refinement): not exact, the full QP decides.
+                return None
             missed = _worst(margin, units, 0.0, rows.size)
             if missed.size == 0:
-                self._bound = units[margin[units] < BOUND]
+                self._bound = units[(margin[units] < BOUND) & rows.on_state[units]]
                 return solvers.QPSolution(
                     status=sol.status,
                     backend=sol.backend,
@@ -269,11 +273,12 @@ class CondensedQP:
         return None
 
     def observe(self, extra: ExtraRows, states: np.ndarray) -> None:
-        """Learn the units that bind ``states`` (``(T, 6)``, the full QP's answer to ``extra``): the
-        next condensed solve starts from them, or is not tried if they are too many."""
+        """Learn the units on the states that bind ``states`` (``(T, 6)``, the full QP's answer to
+        ``extra``): the next condensed solve starts from them, or is not tried if they are too many.
+        (A slack's own ``s >= 0`` joins with the rows it relaxes.)"""
         rows = self._use(extra)
         margin = rows.units.margin(rows.b - rows.C @ states.ravel())
-        self._bound = np.flatnonzero(margin < BOUND)
+        self._bound = np.flatnonzero((margin < BOUND) & rows.on_state)
 
     def _use(self, extra: ExtraRows) -> CondensedRows:
         """The split rows of ``extra``, made when the rows change."""
@@ -368,6 +373,15 @@ def _worst(margin: np.ndarray, exclude: np.ndarray, fraction: float, size: np.nd
     if worst <= 0.0:
         return np.zeros(0, dtype=int)
     return np.flatnonzero(violation >= max(fraction * worst, np.finfo(float).tiny))
+
+
+def _missed_in(margin: np.ndarray, kind: np.ndarray, size: np.ndarray) -> bool:
+    """Whether a unit of the working set is missed on the returned path: by more than :data:`MET`
+    (plus rounding) for inequalities and cones, which are imposed backed off inside their bounds, and
+    by more than rounding for an equality, which has no back-off to absorb a miss (a terminal
+    acceleration of zero is verified to 1e-11)."""
+    least = np.where(kind == 0, 0.0, MET) + ROUNDING * np.maximum(size, 1.0)
+    return bool(np.any(-margin > least))
 
 
 def _stack(per_axis: np.ndarray) -> np.ndarray:

@@ -100,7 +100,8 @@ class CondensedRows:
         self.units = Units.of(extra.cones)
         self.has_state = np.diff(self.C.indptr) > 0
         # Units whose rows touch only slacks (``s >= 0``), by their slack column.
-        on_state = np.zeros(self.units.start.size, dtype=bool)
+        #: Per unit, whether any of its rows is on the states (not only on slacks).
+        self.on_state = on_state = np.zeros(self.units.start.size, dtype=bool)
         on_state[self.units.of_row[self.has_state]] = True
         self.slack_unit = np.full(extra.n_slack, -1)
         own = np.flatnonzero(~on_state[self.units.of_row])
