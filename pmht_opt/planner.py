@@ -136,8 +136,7 @@ class PMHTConfig:
         )
         self.tol = validation.real("tol", self.tol, ConfigError, 0.0)
         for key in ("update_time_prior", "update_platform_prior", "accept_inaccurate"):
-            if not isinstance(getattr(self, key), (bool, np.bool_)):
-                raise ConfigError(f"{key}: expected True or False, got {getattr(self, key)!r}.")
+            validation.flag(key, getattr(self, key))
         validation.solver_settings("solver_settings", self.solver_settings)
         self.threads = _threads(self.threads)
         self.constraints = _with_implied(self.constraints)

@@ -78,6 +78,14 @@ def is_real(value: Any) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
+def flag(name: str, value: Any) -> bool:
+    """``value`` as a ``bool``; :class:`ConfigError` naming ``name`` unless it is ``True`` or ``False``
+    (numpy's included)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ConfigError(f"{name}: expected True or False, got {value!r}.")
+    return bool(value)
+
+
 def is_integer(value: Any) -> bool:
     """Whether ``value`` is an integer: ``int`` or numpy's (never a bool, nor a float like ``3.0``)."""
     return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))

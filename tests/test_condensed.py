@@ -118,10 +118,12 @@ def test_the_working_set_does_not_change_the_answer(scenario_a: po.Scenario) -> 
     qp = make_mstep(scenario_a, "clarabel", constraints=cons).blocks[0].qp(scenario_a.horizon)
     extra = assemble(rows[0].items, qp.layout.n, qp.col_map, units=qp.layout.units, margin=qp.margin)
     clarabel = solvers.get_session_class("clarabel")
+    ref = make_mstep(scenario_a, "banded").solve(MStepData(data.W, data.WZ, data.r))
+    exact = (ref.states[0, 1:], ref.noise[0])
     answers, sizes = [], []
     for start in ("afresh", "one unit", "last"):
-        cqp = CondensedQP(scenario_a.model, scenario_a.initial_states[0], qp.layout)
-        first = cqp.solve(extra, data.W[:, 0], data.WZ[:, 0], data.r, clarabel, {})
+        cqp = CondensedQP(scenario_a.model, qp.layout)
+        first = cqp.solve(extra, data.W[:, 0], data.r, clarabel, {}, exact)
         assert first is not None
         if start == "one unit":
             assert cqp._rows is not None
@@ -129,7 +131,7 @@ def test_the_working_set_does_not_change_the_answer(scenario_a: po.Scenario) -> 
             cqp._bound = np.array([int(np.argmin(margin))])
         sol = first
         if start != "afresh":
-            sol = cqp.solve(extra, data.W[:, 0], data.WZ[:, 0], data.r, clarabel, {})
+            sol = cqp.solve(extra, data.W[:, 0], data.r, clarabel, {}, exact)
         assert sol is not None and sol.ok and sol.x is not None
         answers.append(qp.layout.states(sol.x[: qp.layout.n])[0][:, [0, 3]])
         sizes.append(sol.info["condensed"]["units"])

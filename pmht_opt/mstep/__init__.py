@@ -102,8 +102,7 @@ def solve_mstep(
     WZ = _weights("WZ", WZ, (T, M, 2), nonneg=False)
     r = validation.real("r", r, ConfigError, *validation.R_RANGE)
     cons = fitting_constraints(scenario, constraints, (Sequence, set, frozenset))
-    if not isinstance(accept_inaccurate, (bool, np.bool_)):
-        raise ConfigError(f"accept_inaccurate: expected True or False, got {accept_inaccurate!r}.")
+    validation.flag("accept_inaccurate", accept_inaccurate)
     settings = {} if settings is None else settings
     validation.solver_settings("settings", settings)
     if paths is None:

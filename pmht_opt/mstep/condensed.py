@@ -167,15 +167,14 @@ class CondensedQP:
 
     Parameters
     ----------
-    model, x0, layout
-        The motion model, the platform's start ``(6,)`` and the layout of its constrained QP.
+    model, layout
+        The motion model and the layout of the platform's constrained QP.
     """
 
-    def __init__(self, model: MotionModel, x0: np.ndarray, layout: QPLayout) -> None:
+    def __init__(self, model: MotionModel, layout: QPLayout) -> None:
         self.layout = layout
         self.T = layout.T
         self.smoother = BandedSmoother(model.F3, model.Q3, np.array([1.0, 0.0, 0.0]), self.T, 1)
-        self.x0 = np.stack([x0[0:3], x0[3:6]], axis=-1)[None]  # (1, 3, 2)
         self._rows: CondensedRows | None = None
         self._extra: ExtraRows | None = None
         #: The units that bound the last answer to the current rows.
@@ -188,17 +187,16 @@ class CondensedQP:
         self,
         extra: ExtraRows,
         W: np.ndarray,
-        WZ: np.ndarray,
         r: float,
         session_class: type[solvers.QPSession],
         options: dict[str, Any],
-        exact: tuple[np.ndarray, np.ndarray] | None = None,
+        exact: tuple[np.ndarray, np.ndarray],
     ) -> solvers.QPSolution | None:
         """The M-step's solution vector in the full QP's layout, or ``None`` if the condensed solve did
         not succeed (the caller then solves the full QP).
 
-        ``exact`` is the unconstrained optimum's states and whitened noise, both ``(T, 6)``, where the
-        caller has them (solved here otherwise).
+        ``exact`` is the unconstrained optimum's states and whitened noise, both ``(T, 6)`` (the exact
+        smoother's, which the M-step has computed for its check and screening anyway).
         """
         rows = self._use(extra)
         if self._skip:
@@ -206,7 +204,7 @@ class CondensedQP:
             return None
         if rows.has_state[rows.units.rows(self._bound)].sum() > MAX_ROWS:
             return None  # the last answer was bound by more rows than a condensed QP should take
-        answer = self._solve(rows, W, WZ, r, session_class, options, exact)
+        answer = self._solve(rows, W, r, session_class, options, exact)
         # After failures in a row, wait 1, 3, 7, ... M-steps (at most SKIP_MAX) before trying again:
         # rows that defeat condensing (long stretches of rows at neighbouring steps, whose Sigma is
         # singular to working precision) tend to stay, and each attempt costs more than its full QP.
@@ -218,22 +216,16 @@ class CondensedQP:
         self,
         rows: CondensedRows,
         W: np.ndarray,
-        WZ: np.ndarray,
         r: float,
         session_class: type[solvers.QPSession],
         options: dict[str, Any],
-        exact: tuple[np.ndarray, np.ndarray] | None,
+        exact: tuple[np.ndarray, np.ndarray],
     ) -> solvers.QPSolution | None:
         """:meth:`solve` once it is tried."""
         try:
             factor = self.smoother.factor(r, W[None])
-            if exact is None:
-                force = np.zeros((1, self.T, 3, 2))
-                force[0, :, 0, :] = WZ / r
-                exact = tuple(_stack(a[0]) for a in factor.solve(force, self.x0))  # type: ignore[assignment]
         except solvers.ProblemError:
             return None
-        assert exact is not None
         X0, U0 = exact[0].ravel(), exact[1].ravel()
         margin = rows.units.margin(rows.b - rows.C @ X0)
         # Carried over: the units that bound the last answer and the worst violations now; afresh:

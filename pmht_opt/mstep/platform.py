@@ -208,7 +208,7 @@ class HorizonQP:
         self._rows_key: tuple[tuple[int, ...], ...] | None = None
         self._session_key: tuple[tuple[int, ...], ...] | None = None
         #: The condensed solve of constrained M-steps (:mod:`pmht_opt.mstep.condensed`), if used.
-        self.condensed = None if state.condensed is None else CondensedQP(model, x0, self.layout)
+        self.condensed = None if state.condensed is None else CondensedQP(model, self.layout)
 
     def layout_for(self, constrained: bool) -> QPLayout:
         """The layout of a QP with or without constraint rows.
@@ -290,8 +290,8 @@ class HorizonQP:
         ``exact`` is the unconstrained optimum's states and whitened noise ``(T, 6)``, if the caller
         has them: a condensed solve starts from them (:mod:`pmht_opt.mstep.condensed`).
 
-        With constraint rows and condensing on, the condensed solve is tried first; if it does not
-        succeed, the whole QP below is solved.
+        With constraint rows, condensing on and ``exact`` given, the condensed solve is tried first;
+        if it does not succeed, the whole QP below is solved.
 
         A session's scaling (both backends equilibrate at setup) is kept while ``r`` stays within a
         factor :data:`RESCALE` of the ``r`` it was set up with; past that, and whenever the rows'
@@ -306,9 +306,9 @@ class HorizonQP:
                 self.extra = assemble(
                     rows.items, self.layout.n, self.col_map, units=self.layout.units, margin=self.margin
                 )
-        if self.extra is not None and self.condensed is not None:
+        if self.extra is not None and self.condensed is not None and exact is not None:
             assert self.state.condensed is not None
-            sol = self.condensed.solve(self.extra, W, WZ, r, self.session_class, self.state.condensed, exact)
+            sol = self.condensed.solve(self.extra, W, r, self.session_class, self.state.condensed, exact)
             if sol is not None:
                 return sol
             full = self._solve_full(W, WZ, r, probe, budget)

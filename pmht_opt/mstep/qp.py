@@ -28,6 +28,7 @@ from pmht_opt.mstep.tuning import (
     cvxpy_retries,
 )
 from pmht_opt.scenario import Scenario
+from pmht_opt.validation import flag
 from pmht_opt.verify import resolution
 
 #: Largest violation of a platform's rows by the exact unconstrained optimum for it to be taken as the
@@ -68,13 +69,6 @@ def _work_limit(value: object) -> float | None:
         raise ConfigError(f"solver_settings: {err} None lifts the budget.") from err
 
 
-def _flag(name: str, value: object) -> bool:
-    """``solver_settings[name]`` checked: a bool."""
-    if not isinstance(value, (bool, np.bool_)):
-        raise ConfigError(f"solver_settings: {name} must be True or False, got {value!r}.")
-    return bool(value)
-
-
 def _screen_tol(block: Block) -> np.ndarray | float:
     """The screening tolerance of each unit of ``block`` (:data:`SCREEN_TOL`)."""
     if block.kind != "soc":
@@ -109,7 +103,7 @@ class QPMStep(MStep):
         #: Work budget of one M-step with constraint rows (``None``: none), :data:`MSTEP_WORK`.
         self.mstep_work = _work_limit(self.settings.pop("mstep_work_limit", MSTEP_WORK.get(solver)))
         #: Whether constrained M-steps are condensed first (:mod:`pmht_opt.mstep.condensed`).
-        self.condense = _flag("condense", self.settings.pop("condense", solver in CONDENSED))
+        self.condense = flag("solver_settings.condense", self.settings.pop("condense", solver in CONDENSED))
         #: Whether platforms without constraint rows take the exact smoother's answer (solver "auto").
         self.exact_unconstrained = exact_unconstrained
         try:
