@@ -312,17 +312,9 @@ class BandedSmoother:
         rhs[:, :, 0, :n] += xs0 @ self.Fs.T
 
         band = self._work()
-        np.copyto(band, self._band_T)
-        flat = band.reshape(-1)
-        for index, value in zip(self._pen_index, self._pen_value, strict=True):
-            flat[index] += rho * value
         b = rhs.reshape(K, self.N).T  # (N, K), column-major: LAPACK works on it in place
         try:
-            lu = BandLU(band.T, self.k, b, self._parts(), threads)
-        except np.linalg.LinAlgError as err:
-            raise ProblemError(
-                f"The KKT matrix is numerically singular ({err}): the weights or r are out of range."
-            ) from None
+            lu = self._factorise(band, rho, b, threads)
         except BaseException:
             self._local.band = None  # never reused after a failure, whatever may still touch it
             raise
@@ -347,17 +339,22 @@ class BandedSmoother:
         """
         zero = np.zeros((self.B, self.n, 1))
         r, _, _, rho = self._data(r, zero, np.zeros((self.B, self.T, 1)), weight, 0)
-        band = self._band_T.copy()
+        lu = self._factorise(np.empty_like(self._band_T), rho, np.zeros((self.N, 1), order="F"), threads)
+        return BandedFactor(self, rho, lu)
+
+    def _factorise(self, band: np.ndarray, rho: np.ndarray, b: np.ndarray, threads: int) -> BandLU:
+        """``band`` (a work array of the band's shape) set to the KKT matrix for the penalties ``rho``,
+        factorised in place and ``b`` solved in place."""
+        np.copyto(band, self._band_T)
         flat = band.reshape(-1)
         for index, value in zip(self._pen_index, self._pen_value, strict=True):
             flat[index] += rho * value
         try:
-            lu = BandLU(band.T, self.k, np.zeros((self.N, 1), order="F"), self._parts(), threads)
+            return BandLU(band.T, self.k, b, self._parts(), threads)
         except np.linalg.LinAlgError as err:
             raise ProblemError(
                 f"The KKT matrix is numerically singular ({err}): the weights or r are out of range."
             ) from None
-        return BandedFactor(self, rho, lu)
 
     def _parts(self) -> list[tuple[int, int]]:
         """Rows ``[lo, hi)`` of the groups of whole systems that LAPACK factorises one call each: about
