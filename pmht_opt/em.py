@@ -223,6 +223,7 @@ class EMRun:
             r,
             gate=self.gate,
             threads=self.estep_threads,
+            time_totals=self.config.update_time_prior,
         )
         return es, self._log_prior(states, noise) + es.log_likelihood
 

@@ -10,7 +10,7 @@ import pytest
 import scipy.sparse as sp
 from scipy.special import logsumexp
 
-from pmht_opt.estep import estep
+from pmht_opt.estep import estep, platform_sums
 from pmht_opt.weights import WEIGHTS
 
 
@@ -147,6 +147,29 @@ def test_dense_statistics_are_those_of_a_pass_over_the_weights(seed: int, priors
         np.testing.assert_array_equal(getattr(summary.weights, part), getattr(floored, part))
     # The recomputed weights are the dense E-step's: the rows sum to one, with the direct formula.
     np.testing.assert_allclose(w.sum(axis=1), 1.0, rtol=1e-12)
+
+
+def test_time_totals_left_to_a_read_are_the_same() -> None:
+    """Without ``time_totals`` a dense E-step leaves the time prior to a recompute of its weights:
+    the same numbers to the last bit, and nothing else changes."""
+    z, pos = _paths(2, 90, 300, 4)
+    full = estep(z, pos, None, None, 0.2, gate=None, threads=2)
+    lean = estep(z, pos, None, None, 0.2, gate=None, threads=2, time_totals=False)
+    assert full.time_totals is not None and lean.time_totals is None
+    np.testing.assert_array_equal(lean.time_prior(), full.time_prior())
+    for name in ("W", "WZ", "log_normaliser", "platform_totals", "best_column", "largest"):
+        np.testing.assert_array_equal(getattr(lean, name), getattr(full, name))
+
+
+@pytest.mark.parametrize("M", range(1, 25))
+def test_platform_sums_are_numpys_to_the_last_bit(M: int) -> None:
+    """The dense E-step's per-platform sums over time are ``sum(axis=1)``'s, bit for bit, for every
+    number of platforms (numpy sums a contiguous axis pairwise and a strided one in order)."""
+    rng = np.random.default_rng(M)
+    for T in (1, 2, 7, 9, 17, 129, 1001):
+        for n in (1, 3, 40):
+            ntm = rng.random((n, T, M)) ** 6  # a wide range of magnitudes: the order of a sum shows
+            np.testing.assert_array_equal(platform_sums(ntm), ntm.sum(axis=1))
 
 
 def test_a_dense_estep_does_not_allocate_its_weights() -> None:
