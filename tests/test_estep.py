@@ -47,6 +47,29 @@ def test_weights_match_direct_formula(rng: np.random.Generator) -> None:
     np.testing.assert_allclose(es.time_prior().sum(axis=1), 1.0)
 
 
+def test_weights_that_mostly_underflow_match_the_direct_formula(rng: np.random.Generator) -> None:
+    """Small ``r`` over a wide field: most log weights lie below -746, where only the others'
+    exponentials are formed; the weights are still the direct formula's, with exact zeros there and
+    the subnormal range (log weights between -746 and -708) kept."""
+    N, T, M, r = 6, 40, 3, 1e-3
+    z = rng.uniform(0, 3, (N, 2))
+    pos = rng.uniform(0, 3, (M, T, 2))
+    pos[0, 0] = z[0] + [np.sqrt(2 * r * 730.0), 0.0]  # a weight of about e^-730 relative to the best
+    pos[1, 0] = z[0]
+    tau = rng.dirichlet(np.ones(T), size=N)
+    k = rng.dirichlet(np.ones(M), size=N)
+    ll = brute_force(z, pos, np.log(tau), np.log(k), r)
+    rel = ll - ll.max(axis=(1, 2), keepdims=True)
+    assert np.mean(rel < -746) > 0.5  # the path that gathers the survivors
+    es = estep(z, pos, np.log(tau), np.log(k), r)
+    lse = logsumexp(ll, axis=(1, 2))
+    w = es.weights_ntm()
+    np.testing.assert_allclose(w, np.exp(ll - lse[:, None, None]), rtol=1e-9, atol=1e-300)
+    assert np.all(w[rel < -746] == 0.0)
+    assert 0.0 < w[0, 0, 0] < 1e-300  # subnormal, not flushed
+    np.testing.assert_allclose(es.log_normaliser, lse, rtol=1e-12)
+
+
 def test_uniform_priors_are_the_default(rng: np.random.Generator) -> None:
     N, T, M = 4, 6, 2
     z = rng.uniform(0, 1, (N, 2))
