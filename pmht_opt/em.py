@@ -27,7 +27,7 @@ from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.model import POS
 from pmht_opt.mstep.base import MStepData, MStepOutput
 from pmht_opt.mstep.registry import make_mstep, resolve
-from pmht_opt.parallel import concurrent, usable_cores
+from pmht_opt.parallel import block_threads, concurrent, usable_cores
 from pmht_opt.planner import PMHTConfig
 from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario
@@ -173,7 +173,7 @@ class EMRun:
         self._started = time.perf_counter()
         threads = cfg.threads if cfg.threads is not None else min(M, usable_cores())
         #: Threads of the E-step's blocks of locales (any number gives the same weights, bit for bit).
-        self.estep_threads = cfg.threads if cfg.threads is not None else usable_cores()
+        self.estep_threads = block_threads(cfg.threads or usable_cores(), N * T * M)
         #: The backend that runs the M-steps (``"auto"`` resolved).
         self.solver = resolve(cfg.solver, cfg.constraints)
         self.mstep = make_mstep(

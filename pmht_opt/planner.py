@@ -71,8 +71,9 @@ class PMHTConfig:
         Threads for the per-platform QPs of ``osqp`` and ``clarabel``, for the exact smoother's
         batch of platforms (``banded``, and the check of every other backend's answer) and for the
         E-step's blocks of locales; ``None`` uses one per core the process may run on (up to the
-        number of platforms for the QPs). The plan does not depend on it, to the last bit. Use 1
-        inside process-parallel Monte Carlo runs.
+        number of platforms for the QPs; E-steps of fewer than
+        :data:`~pmht_opt.parallel.MIN_THREADED_TRIPLES` triples stay on one). The plan does not
+        depend on it, to the last bit. Use 1 inside process-parallel Monte Carlo runs.
     constraints
         Constraints on the paths (:mod:`pmht_opt.constraints`), imposed in every M-step; the returned
         plan meets them (hard) or reports how far it misses them (soft), see

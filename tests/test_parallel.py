@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import pmht_opt as po
+from pmht_opt.em import EMRun
 from pmht_opt.estep import estep, log_likelihood, safe_log
 from pmht_opt.parallel import ordered_map
 
@@ -58,17 +59,29 @@ def test_estep_is_the_same_on_any_number_of_threads(
 
 def test_plans_are_the_same_on_any_number_of_threads(monkeypatch: Any) -> None:
     """Whole annealed plans, dense and gated E-steps, with 1 and 2 threads: identical to the last bit."""
-    from pmht_opt import candidates, likelihood
+    from pmht_opt import candidates, likelihood, parallel
 
     monkeypatch.setattr(likelihood, "_BLOCK", 5000)
     monkeypatch.setattr(candidates, "_BLOCK", 5000)
+    monkeypatch.setattr(parallel, "MIN_THREADED_TRIPLES", 0)  # threads even for this small a plan
     sc = po.paper_scenario("C", seed=2, horizon=150)
-    plans = [
-        po.plan_pmht(sc, po.PMHTConfig(max_iter=25, anneal=po.Anneal(1.0, 12), threads=t)) for t in (1, 2)
-    ]
+    cfgs = [po.PMHTConfig(max_iter=25, anneal=po.Anneal(1.0, 12), threads=t) for t in (1, 2)]
+    assert [EMRun(sc, cfg).estep_threads for cfg in cfgs] == [1, 2]
+    plans = [po.plan_pmht(sc, cfg) for cfg in cfgs]
     np.testing.assert_array_equal(plans[0].positions, plans[1].positions)
     np.testing.assert_array_equal(plans[0].history.objective, plans[1].history.objective)
     np.testing.assert_array_equal(plans[0].assignment, plans[1].assignment)
+
+
+def test_small_esteps_stay_on_one_thread() -> None:
+    """Below the threshold an E-step's blocks (and the objective beside them) run on the calling
+    thread, whatever the threads asked for; above it they get them."""
+    from pmht_opt.parallel import MIN_THREADED_TRIPLES, block_threads
+
+    assert block_threads(2, MIN_THREADED_TRIPLES - 1) == 1
+    assert block_threads(2, MIN_THREADED_TRIPLES) == 2
+    assert block_threads(1, 10 * MIN_THREADED_TRIPLES) == 1
+    assert EMRun(po.paper_scenario("A", seed=0), po.PMHTConfig(threads=2)).estep_threads == 1
 
 
 def test_ordered_map_keeps_order_and_raises_in_order() -> None:
