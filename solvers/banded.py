@@ -190,6 +190,11 @@ class BandedSmoother:
         self._Aprev_T = self._Aprev.T.copy()
         self._Anext_T = self._Anext.T.copy()
         self._hz = np.concatenate([np.zeros(n), self.hs])  # penalty direction in z_t
+        # Where h picks one component (a position measured), the penalty's products touch that column
+        # of z_t only: ``z @ hz`` is then ``z[..., i] * hz[i]`` exactly (the other terms are exact
+        # zeros), and the rest of a product with ``hz`` is zeros, so that column alone is worked on.
+        nonzero = np.flatnonzero(self._hz)
+        self._pick = int(nonzero[0]) if nonzero.size == 1 else None
         self._unscale = np.concatenate([1.0 / d, d])  # z_t -> [lam_t, x_t] in the model's units
         self._build_band()
         self._local = threading.local()
@@ -308,7 +313,11 @@ class BandedSmoother:
         # transpose of the column-major (N, K) array LAPACK works on.
         xs0 = np.moveaxis(x0, 2, 0) / self.d  # (K, B, n)
         yk = np.moveaxis(y, 2, 0)  # (K, B, T)
-        rhs = (rho * yk)[..., None] * self._hz
+        if self._pick is None:
+            rhs = (rho * yk)[..., None] * self._hz
+        else:
+            rhs = np.zeros((K, self.B, self.T, 2 * n))
+            rhs[..., self._pick] = (rho * yk) * self._hz[self._pick]
         rhs[:, :, 0, :n] += xs0 @ self.Fs.T
 
         band = self._work()
@@ -425,7 +434,11 @@ class BandedSmoother:
         res[:, :, 1:] -= z[:, :, :-1] @ self._Aprev_T
         res[:, :, :-1] -= z[:, :, 1:] @ self._Anext_T
         res[:, :, 0, :n] += xs0 @ self.Fs.T
-        res += (rho * (yk - z @ self._hz))[..., None] * self._hz
+        if self._pick is None:
+            res += (rho * (yk - z @ self._hz))[..., None] * self._hz
+        else:
+            i, hi = self._pick, self._hz[self._pick]
+            res[..., i] += (rho * (yk - z[..., i] * hi)) * hi
         return res
 
     def _backward_error(self, z: np.ndarray, xs0: np.ndarray, yk: np.ndarray, rho: np.ndarray) -> float:
