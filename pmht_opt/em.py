@@ -22,7 +22,7 @@ import solvers
 from pmht_opt import validation
 from pmht_opt.constraints.base import ConstraintContext
 from pmht_opt.constraints.feasibility import check_feasible
-from pmht_opt.estep import EStepResult, estep, gate_margin, log_likelihood, safe_log
+from pmht_opt.estep import EStepResult, estep, estep_scored, gate_margin, log_likelihood, safe_log
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.model import POS
 from pmht_opt.mstep.base import MStepData, MStepOutput
@@ -240,22 +240,26 @@ class EMRun:
 
         During annealing the two penalties differ: the next iteration weighs with its ``r``, so at
         this one only the objective is formed (:func:`~pmht_opt.estep.log_likelihood`: the same
-        number, without the weights).
+        number, without the weights). On one thread the two share their squared distances
+        (:func:`~pmht_opt.estep.estep_scored`); on several the objective runs beside the E-step.
         """
         schedule = self.schedule
         if it < schedule.max_iter and schedule.r_at(it + 1) != r:
-            # Two independent computations on the same paths: the objective runs beside the E-step.
-            with concurrent(
-                self.estep_threads,
-                log_likelihood,
-                self.scenario.locales,
-                states[:, 1:, POS],
-                *priors,
-                r,
-                gate=self.gate,
-                threads=self.estep_threads,
-            ) as data_term:
-                es, _ = self._estep(states, schedule.r_at(it + 1), None, *priors)
+            r_next, threads = schedule.r_at(it + 1), self.estep_threads
+            if threads <= 1:
+                es, score = estep_scored(
+                    self.scenario.locales,
+                    states[:, 1:, POS],
+                    *priors,
+                    r_next,
+                    r,
+                    gate=self.gate,
+                    time_totals=self.config.update_time_prior,
+                )
+                return es, self._log_prior(states, noise) + score
+            args = (self.scenario.locales, states[:, 1:, POS], *priors, r)
+            with concurrent(threads, log_likelihood, *args, gate=self.gate, threads=threads) as data_term:
+                es, _ = self._estep(states, r_next, None, *priors)
                 return es, self._log_prior(states, noise) + data_term()
         return self._estep(states, r, noise, *priors)
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from pmht_opt.gated_sums import row_maxima
+from pmht_opt.gated_sums import GatedWeights, row_maxima
 from pmht_opt.gating import GATE_MAX_FRACTION, estep_gated, gate_margin, gated_log_normalisers
 from pmht_opt.likelihood import EStepInputs
 from pmht_opt.parallel import thread_count
@@ -255,14 +255,17 @@ def log_likelihood(
         ``sum_n log sum_{t,m} pi^tau[n,t] pi^k[n,m] zeta(z_n | x_t^m)``.
     """
     M, T, _ = positions.shape
-    margin = gate_margin(gate, T, M)
-    threads = thread_count(threads)
     inputs = EStepInputs(locales, positions, log_time_prior, log_platform_prior, r)
+    return _log_likelihood(inputs, gate_margin(gate, T, M), thread_count(threads))
+
+
+def _log_likelihood(inputs: EStepInputs, margin: float | None, threads: int) -> float:
+    """:func:`log_likelihood` of checked inputs."""
     lse = gated_log_normalisers(inputs, margin, threads) if margin is not None else None
     if lse is None:
-        lse = np.empty(locales.shape[0])
-        for i, j, block_lse, _ in inputs.dense_blocks(None, threads):
-            lse[i:j] = block_lse
+        lse = np.empty(inputs.locales.shape[0])
+        for block in inputs.dense_blocks(None, threads):
+            lse[block.i : block.j] = block.lse
     return float(np.sum(lse))
 
 
@@ -313,28 +316,90 @@ def estep(
         needs it, and the sum over the few platforms of every ``(n, t)`` costs as much as the rest of
         the statistics together.
     """
-    z = locales
     M, T, _ = positions.shape
-    N = z.shape[0]
     margin = gate_margin(gate, T, M)
     threads = thread_count(threads)
-    inputs = EStepInputs(z, positions, log_time_prior, log_platform_prior, r)
+    inputs = EStepInputs(locales, positions, log_time_prior, log_platform_prior, r)
     if margin is not None:
         gated = estep_gated(inputs, margin, threads)
         if gated is not None:
-            return EStepResult(
-                weights=gated.weights,
-                W=gated.W,
-                WZ=gated.WZ,
-                log_normaliser=gated.log_normaliser,
-                n_platforms=M,
-                inputs=gated.inputs,
-                platform_totals=gated.platform_totals,
-                best_column=gated.best_column,
-                largest=gated.largest,
-            )
+            return _gated_result(gated, M)
+    return _dense_estep(inputs, threads, time_totals)[0]
+
+
+def estep_scored(
+    locales: np.ndarray,
+    positions: np.ndarray,
+    log_time_prior: np.ndarray | None,
+    log_platform_prior: np.ndarray | None,
+    r: float,
+    score_at: float,
+    gate: float | str | None = None,
+    threads: int = 1,
+    *,
+    time_totals: bool = True,
+) -> tuple[EStepResult, float]:
+    """``estep(..., r, ...)`` and ``log_likelihood(..., score_at, ...)`` of the same paths, bit for bit
+    (the same gate decisions and arithmetic), the squared distances formed once where both are dense.
+
+    Annealing weighs the next iteration at the next ``r`` but scores this one at its own: the two
+    differ only in the penalty, and the distances are a third of a dense E-step's work.
+
+    Parameters
+    ----------
+    locales, positions, log_time_prior, log_platform_prior, r, gate, threads, time_totals
+        As for :func:`estep`.
+    score_at
+        The penalty of the log-likelihood.
+
+    Returns
+    -------
+    tuple[EStepResult, float]
+        The E-step at ``r`` and the log-likelihood at ``score_at``.
+    """
+    M, T, _ = positions.shape
+    margin = gate_margin(gate, T, M)
+    threads = thread_count(threads)
+    inputs = EStepInputs(locales, positions, log_time_prior, log_platform_prior, r)
+    scored = EStepInputs(locales, positions, log_time_prior, log_platform_prior, score_at)
+    if margin is not None:
+        gated = estep_gated(inputs, margin, threads)
+        if gated is not None:
+            return _gated_result(gated, M), _log_likelihood(scored, margin, threads)
+        lse = gated_log_normalisers(scored, margin, threads)
+        if lse is not None:
+            return _dense_estep(inputs, threads, time_totals)[0], float(np.sum(lse))
+    es, score = _dense_estep(inputs, threads, time_totals, score_at)
+    assert score is not None
+    return es, float(np.sum(score))
+
+
+def _gated_result(gated: GatedWeights, M: int) -> EStepResult:
+    """The :class:`EStepResult` of a gated E-step."""
+    return EStepResult(
+        weights=gated.weights,
+        W=gated.W,
+        WZ=gated.WZ,
+        log_normaliser=gated.log_normaliser,
+        n_platforms=M,
+        inputs=gated.inputs,
+        platform_totals=gated.platform_totals,
+        best_column=gated.best_column,
+        largest=gated.largest,
+    )
+
+
+def _dense_estep(
+    inputs: EStepInputs, threads: int, time_totals: bool, score_at: float | None = None
+) -> tuple[EStepResult, np.ndarray | None]:
+    """The dense E-step, its statistics formed block by block on the way; with ``score_at`` also the
+    log-normalisers at that penalty (:meth:`EStepInputs.dense_blocks`)."""
+    z = inputs.locales
+    M, T, _ = inputs.positions.shape
+    N = z.shape[0]
     TM = T * M
     lse = np.empty(N)
+    score = None if score_at is None else np.empty(N)
     W = np.zeros(TM)
     WZ = np.zeros((2, TM))
     platform, by_time = np.empty((N, M)), np.empty((N, T)) if time_totals else None
@@ -349,15 +414,18 @@ def estep(
         by_time = ntm.sum(axis=2) if time_totals else None
         return block.sum(axis=0), z[i:j].T @ block, platform_sums(ntm), by_time, column, top
 
-    for i, j, block_lse, parts in inputs.dense_blocks(None, threads, sums):
-        lse[i:j] = block_lse
+    for block in inputs.dense_blocks(None, threads, sums, score_at):
+        i, j, parts = block.i, block.j, block.done
+        lse[i:j] = block.lse
+        if score is not None and block.score is not None:
+            score[i:j] = block.score
         W += parts[0]
         WZ += parts[1]
         platform[i:j], by_block, best_column[i:j], largest[i:j] = parts[2:]
         if by_time is not None:
             by_time[i:j] = by_block
     # The weights themselves are recomputed only if read (DenseRows).
-    return EStepResult(
+    result = EStepResult(
         weights=DenseRows(inputs),
         W=W.reshape(T, M),
         WZ=WZ.T.reshape(T, M, 2),
@@ -369,6 +437,7 @@ def estep(
         largest=largest,
         time_totals=by_time,
     )
+    return result, score
 
 
 def platform_sums(ntm: np.ndarray) -> np.ndarray:
@@ -391,6 +460,7 @@ __all__ = [
     "EStepResult",
     "EStepSummary",
     "estep",
+    "estep_scored",
     "gate_margin",
     "log_likelihood",
     "safe_log",

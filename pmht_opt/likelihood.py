@@ -14,7 +14,7 @@ import functools
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -122,46 +122,71 @@ class EStepInputs:
         out: np.ndarray | None,
         threads: int = 1,
         finish: Callable[[int, int, np.ndarray], Any] | None = None,
-    ) -> Iterator[tuple[int, int, np.ndarray, Any]]:
+        score_at: float | None = None,
+    ) -> Iterator[DenseBlock]:
         """Fill ``out (N, T*M)`` with the normalised weights of the locales ``(N, 2)`` against the paths
-        ``(M, T, 2)``, a block of rows at a time; yields ``(i, j, log-normalisers of rows i..j,
-        finish(i, j, rows))`` after each block, in order, ``finish`` (default none) computing what the
-        caller wants of the block while it is in cache. With ``out=None`` each block's weights go to a
-        scratch block, overwritten later (``finish`` must then not return a view of it): for a caller
-        that wants the log-normalisers only. With ``threads > 1`` the blocks, ``finish`` included,
-        are computed on threads (:func:`pmht_opt.parallel.ordered_map`): the same blocks with the
-        same arithmetic."""
+        ``(M, T, 2)``, a block of rows at a time; yields a :class:`DenseBlock` after each block, in
+        order, ``finish`` (default none) computing what the caller wants of the block while it is in
+        cache. With ``out=None`` each block's weights go to a scratch block, overwritten later
+        (``finish`` must then not return a view of it): for a caller that wants the log-normalisers
+        only. With ``threads > 1`` the blocks, ``finish`` included, are computed on threads
+        (:func:`pmht_opt.parallel.ordered_map`): the same blocks with the same arithmetic.
+
+        ``score_at``: also the log-normalisers at this second penalty, from the same squared
+        distances (the ones the E-step at that penalty would give, bit for bit): annealing scores an
+        iteration at its own ``r`` while it weighs the next at the next one.
+        """
         M, T, _ = self.positions.shape
         N = self.locales.shape[0]
         TM = T * M
         p = np.ascontiguousarray(self.positions.transpose(1, 0, 2)).reshape(TM, 2)
-        const = log_const(self.r, T, M, self.log_time_prior is None, self.log_platform_prior is None)
+        uniform = (self.log_time_prior is None, self.log_platform_prior is None)
+        const = log_const(self.r, T, M, *uniform)
+        const2 = None if score_at is None else log_const(score_at, T, M, *uniform)
         # Blocks of rows small enough to stay in cache through every pass.
         step = max(1, _BLOCK // TM)
         spans = [(i, min(i + step, N)) for i in range(0, N, step)]
+        keep = out is not None or finish is not None  # someone reads the weights
 
-        def block(i: int, j: int) -> tuple[int, int, np.ndarray, Any]:
+        def block(i: int, j: int) -> DenseBlock:
             # Work arrays of the computing thread, kept across calls (fresh memory is slow to touch).
             rows = scratch("dense_rows", j - i, TM) if out is None else out[i:j]
-            lse = _dense_rows(self.of_locales(i, j), p, const, rows, scratch("dense_tmp", j - i, TM))
-            return i, j, lse, None if finish is None else finish(i, j, rows)
+            part = self.of_locales(i, j)
+            distance2 = _squared_distances_rows(part.locales, p, rows, scratch("dense_tmp", j - i, TM))
+            priors = _prior_rows(part, T, M)
+            score = None
+            if score_at is not None and const2 is not None:
+                other = scratch("dense_score", j - i, TM)
+                np.copyto(other, rows)
+                score = _normalise_rows(other, score_at, const2, priors, distance2, part, T, M, False)
+            lse = _normalise_rows(rows, self.r, const, priors, distance2, part, T, M, keep)
+            return DenseBlock(i, j, lse, None if finish is None else finish(i, j, rows), score)
 
         yield from ordered_map(block, spans, threads)
 
 
-def _dense_rows(
-    block: EStepInputs, p: np.ndarray, const: float, out: np.ndarray, tmp: np.ndarray
-) -> np.ndarray:
-    """Normalised weights of the locales of ``block`` against the ``(T*M, 2)`` points ``p`` into ``out``;
-    returns their log-normalisers. ``tmp`` is scratch of ``out``'s shape. Every row is computed on its
-    own, with the same operations whatever the block: the E-step and the exact row recompute agree bit
-    for bit."""
-    z, r = block.locales, block.r
-    log_tau, log_k = block.log_time_prior, block.log_platform_prior
-    M, T, _ = block.positions.shape
-    # Far-away rows (a diverged plan, or a locale far out): hypot avoids the overflow of the squared
-    # coordinates. Decided row by row (NaN counts as far), so that a row's weights never depend on
-    # the other rows of its block.
+class DenseBlock(NamedTuple):
+    """One block of :meth:`EStepInputs.dense_blocks`: rows ``i .. j - 1``, their log-normalisers, what
+    ``finish`` made of the block, and the log-normalisers at ``score_at`` (``None`` if not asked)."""
+
+    i: int
+    j: int
+    lse: np.ndarray
+    done: Any
+    score: np.ndarray | None
+
+
+def _squared_distances_rows(
+    z: np.ndarray, p: np.ndarray, out: np.ndarray, tmp: np.ndarray
+) -> np.ndarray | None:
+    """Squared distances of the locales ``z`` to the ``(T*M, 2)`` points ``p`` into ``out`` (``tmp``:
+    scratch of its shape); returns a copy of them where some are not finite (for the rows whose every
+    log weight is ``-inf``), else ``None``.
+
+    Far-away rows (a diverged plan, or a locale far out) go through ``hypot``, which avoids the
+    overflow of the squared coordinates. That is decided row by row (NaN counts as far), so that a
+    row's weights never depend on the other rows of its block.
+    """
     far = ~(np.maximum(np.max(np.abs(z), axis=1), float(np.max(np.abs(p)))) < _SAFE_SCALE)
     distance2 = None
     if not np.any(far):
@@ -177,18 +202,44 @@ def _dense_rows(
         out[far] = far_d
         if not np.all(np.isfinite(out)):
             distance2 = out.copy()
-    ll = log_weights_from_d2(out, r, const)
-    # The priors added as rows of the block's layout (column t*M + m): a broadcast over an axis of
-    # length M runs NumPy's inner loop M elements at a time, three times slower than these copies and
-    # a contiguous add, which add the same numbers.
-    if log_tau is not None:
-        ll += np.repeat(log_tau, M, axis=1)
-    if log_k is not None:
-        ll += np.tile(log_k, T)
+    return distance2
+
+
+def _prior_rows(block: EStepInputs, T: int, M: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The log priors of ``block``'s rows in the block's layout (column ``t*M + m``): ``log pi^tau``
+    repeated over the platforms, ``log pi^k`` tiled over the times (``None`` where uniform). Adding
+    these is a contiguous pass; a broadcast over an axis of length ``M`` runs NumPy's inner loop ``M``
+    elements at a time, three times slower, for the same numbers."""
+    lt, lk = block.log_time_prior, block.log_platform_prior
+    return (
+        None if lt is None else np.repeat(lt, M, axis=1),
+        None if lk is None else np.tile(lk, T),
+    )
+
+
+def _normalise_rows(
+    d2: np.ndarray,
+    r: float,
+    const: float,
+    priors: tuple[np.ndarray | None, np.ndarray | None],
+    distance2: np.ndarray | None,
+    block: EStepInputs,
+    T: int,
+    M: int,
+    weights: bool = True,
+) -> np.ndarray:
+    """The squared distances ``d2`` of ``block``'s rows turned, in place, into their normalised weights
+    at penalty ``r`` (unnormalised without ``weights``: for a caller that wants the log-normalisers
+    only); returns the rows' log-normalisers. Every row is computed on its own, with the same operations
+    whatever the block: the E-step and the exact row recompute agree bit for bit."""
+    ll = log_weights_from_d2(d2, r, const)
+    for rows in priors:
+        if rows is not None:
+            ll += rows
     mx = ll.max(axis=1)
     bad = ~np.isfinite(mx)
     if np.any(bad):
-        _limit_rows(ll, mx, bad, distance2, log_tau, log_k, T, M)
+        _limit_rows(ll, mx, bad, distance2, block.log_time_prior, block.log_platform_prior, T, M)
     ll -= mx[:, None]
     below = ll < -_UNDERFLOW
     if np.count_nonzero(below) > below.size // 4:
@@ -203,7 +254,8 @@ def _dense_rows(
     else:
         np.exp(ll, out=ll)
     s = ll.sum(axis=1)
-    ll *= (1.0 / s)[:, None]
+    if weights:
+        ll *= (1.0 / s)[:, None]
     lse = mx + np.log(s)
     lse[bad] = -np.inf  # the likelihood of these rows underflows to exactly zero
     return lse

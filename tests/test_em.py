@@ -174,16 +174,29 @@ def test_without_constraints_the_used_estep_is_released_before_the_next(
 
     formed: list[weakref.ref[object]] = []
     alive_at_each_call: list[int] = []
-    real = em.estep
+    real, real_scored = em.estep, em.estep_scored
 
-    def counting(*args: object, **kwargs: object) -> object:
+    def counted(es: object) -> None:
+        formed.append(weakref.ref(es))
+
+    def alive() -> None:
         gc.collect()
         alive_at_each_call.append(sum(ref() is not None for ref in formed))
+
+    def counting(*args: object, **kwargs: object) -> object:
+        alive()
         es = real(*args, **kwargs)  # type: ignore[arg-type]
-        formed.append(weakref.ref(es))
+        counted(es)
         return es
 
+    def counting_scored(*args: object, **kwargs: object) -> object:  # annealing's E-steps
+        alive()
+        es, score = real_scored(*args, **kwargs)  # type: ignore[arg-type]
+        counted(es)
+        return es, score
+
     monkeypatch.setattr(em, "estep", counting)
+    monkeypatch.setattr(em, "estep_scored", counting_scored)
     sc = small_scenario(seed=4)
     with po.EMRun(sc, po.PMHTConfig(max_iter=5, anneal=po.Anneal(1.0, 3))) as run:
         for _ in range(5):

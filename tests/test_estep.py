@@ -10,7 +10,7 @@ import pytest
 import scipy.sparse as sp
 from scipy.special import logsumexp
 
-from pmht_opt.estep import estep, platform_sums
+from pmht_opt.estep import estep, estep_scored, log_likelihood, platform_sums
 from pmht_opt.weights import WEIGHTS
 
 
@@ -182,6 +182,51 @@ def test_time_totals_left_to_a_read_are_the_same() -> None:
     np.testing.assert_array_equal(lean.time_prior(), full.time_prior())
     for name in ("W", "WZ", "log_normaliser", "platform_totals", "best_column", "largest"):
         np.testing.assert_array_equal(getattr(lean, name), getattr(full, name))
+
+
+@pytest.mark.parametrize(
+    ("r", "score_at", "gate", "far", "gated"),
+    [
+        (0.5, 0.8, "auto", False, (False, False)),  # both dense: the distances shared
+        (0.5, 0.8, None, False, (False, False)),
+        (0.5, 0.8, "auto", True, (False, False)),  # a far locale, through hypot
+        (0.002, 0.003, "auto", False, (True, True)),
+        (0.002, 3.0, "auto", False, (True, False)),
+        (0.5, 0.002, "auto", False, (False, True)),
+    ],
+)
+@pytest.mark.parametrize("priors", [False, True])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_a_scored_estep_is_the_estep_and_the_log_likelihood(
+    r: float,
+    score_at: float,
+    gate: str | None,
+    far: bool,
+    gated: tuple[bool, bool],
+    priors: bool,
+    threads: int,
+) -> None:
+    """``estep_scored`` gives ``estep``'s result and ``log_likelihood``'s number to the last bit,
+    whichever of the two is gated."""
+    from pmht_opt.gating import gate_margin, gated_log_normalisers
+    from pmht_opt.likelihood import EStepInputs
+
+    z, pos = _paths(5, 120, 400, 3)
+    if far:
+        z[7] = [1e120, -3e119]
+    rng = np.random.default_rng(5)
+    lt = np.log(rng.dirichlet(np.ones(400), 120)) if priors else None
+    lk = np.log(rng.dirichlet(np.ones(3), 120)) if priors else None
+    es, score = estep_scored(z, pos, lt, lk, r, score_at, gate=gate, threads=threads, time_totals=priors)
+    want = estep(z, pos, lt, lk, r, gate=gate, threads=threads, time_totals=priors)
+    assert score == log_likelihood(z, pos, lt, lk, score_at, gate=gate, threads=threads)
+    margin = gate_margin(gate, 400, 3)
+    scored = EStepInputs(z, pos, lt, lk, score_at)
+    assert (es.gated, margin is not None and gated_log_normalisers(scored, margin) is not None) == gated
+    names = ("W", "WZ", "log_normaliser", "platform_totals", "best_column", "largest", "time_totals")
+    for name in names:
+        np.testing.assert_array_equal(getattr(es, name), getattr(want, name), err_msg=name)
+    np.testing.assert_array_equal(es.weights_ntm(), want.weights_ntm())
 
 
 @pytest.mark.parametrize("M", range(1, 25))
