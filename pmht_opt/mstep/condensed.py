@@ -107,29 +107,33 @@ class _Responses:
         """Solve for the patterns of rows ``new`` not seen yet (without iterative refinement: the
         responses only form the small QP's matrix ``Sigma``, whose rounding moves the optimum ``w``
         by as little; the path itself is solved refined, :meth:`apply`)."""
-        forces: list[tuple[np.ndarray, np.ndarray]] = []
         sub = self.C[new]
-        for j, i in enumerate(new):
-            cols = sub.indices[sub.indptr[j] : sub.indptr[j + 1]]
-            vals = sub.data[sub.indptr[j] : sub.indptr[j + 1]]
-            parts = []
-            for axis in (0, 1):
-                on = (cols % STATE_DIM) // 3 == axis
-                if not np.any(on):
-                    continue
-                idx = 3 * (cols[on] // STATE_DIM) + cols[on] % 3  # in the one-axis stacked states
-                scale = float(vals[on][0])
-                key = idx.tobytes() + (vals[on] / scale).tobytes()
-                column = self._pattern.get(key)
-                if column is None:
-                    column = self._pattern[key] = self.R.shape[1] + len(forces)
-                    forces.append((idx, vals[on] / scale))
-                parts.append((axis, column, scale))
-            self._parts[i] = parts
+        # Every row's parts: its entries on one axis, in the matrix's order, as (row, axis) segments.
+        cols, vals = sub.indices, sub.data
+        segment = np.repeat(2 * np.arange(len(new)), np.diff(sub.indptr)) + (cols % STATE_DIM) // 3
+        order = np.argsort(segment, kind="stable")
+        cols, vals, segment = cols[order], vals[order], segment[order]
+        starts = np.flatnonzero(np.concatenate(([True], segment[1:] != segment[:-1])))
+        ends = np.append(starts[1:], segment.size)
+        scale = vals[starts]
+        idx = 3 * (cols // STATE_DIM) + cols % 3  # in the one-axis stacked states
+        shape = vals / np.repeat(scale, ends - starts)
+        forces: list[tuple[np.ndarray, np.ndarray]] = []
+        parts: dict[int, list[tuple[int, int, float]]] = {i: [] for i in new}
+        spans = zip(starts.tolist(), ends.tolist(), segment[starts].tolist(), scale.tolist(), strict=True)
+        for a, b, seg, sc in spans:
+            key = idx[a:b].tobytes() + shape[a:b].tobytes()
+            column = self._pattern.get(key)
+            if column is None:
+                column = self._pattern[key] = self.R.shape[1] + len(forces)
+                forces.append((idx[a:b], shape[a:b]))
+            parts[new[seg // 2]].append((seg % 2, column, sc))
+        self._parts.update(parts)
         if forces:
             force = np.zeros((3 * self.T, len(forces)))
-            for c, (idx, val) in enumerate(forces):
-                force[idx, c] = val
+            rows = np.concatenate([f[0] for f in forces])
+            which = np.repeat(np.arange(len(forces)), [f[0].size for f in forces])
+            force[rows, which] = np.concatenate([f[1] for f in forces])
             st, _ = self.factor.solve(force.reshape(1, self.T, 3, len(forces)), refine=0)
             self.R = np.concatenate([self.R, st[0].reshape(3 * self.T, len(forces))], axis=1)
 
@@ -139,9 +143,10 @@ class _Responses:
         self._add([i for i in rows if i not in self._parts])
         k = len(rows)
         resp = np.zeros((2, 3 * self.T, k))
-        for j, i in enumerate(rows):
-            for axis, column, scale in self._parts[i]:
-                resp[axis, :, j] = scale * self.R[:, column]
+        parts = [(axis, j, col, scale) for j, i in enumerate(rows) for axis, col, scale in self._parts[i]]
+        if parts:
+            axes, js, columns, scales = (np.array(v) for v in zip(*parts, strict=True))
+            resp[axes, :, js] = (self.R[:, columns] * scales).T
         sub = self.C[state_rows].tocoo()
         axis = (sub.col % STATE_DIM) // 3
         idx = 3 * (sub.col // STATE_DIM) + sub.col % 3
