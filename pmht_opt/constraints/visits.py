@@ -53,49 +53,67 @@ def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np
     best = es.max_weight()  # the weight at each locale's MAP (platform, time)
     steps = np.diff(ctx.states[:, :, POS], axis=1)
     speed = np.median(np.hypot(steps[..., 0], steps[..., 1]), axis=1)  # (M,) typical step length
-    placed_t: dict[int, list[int]] = {}
-    placed_n: dict[int, list[int]] = {}
+    N, M = locales.shape[0], starts.shape[0]
+    # The visits placed so far on each platform: their locales' coordinates and times, in order.
+    placed_xy = np.empty((M, N, 2))
+    placed_t = np.empty((M, N))
+    count = np.zeros(M, dtype=int)
     for n in np.argsort(-best, kind="stable").tolist():
-        m = int(platform[n])
-        # The start (t = 0) counts as a placed visit: a locale 1 unit from the start cannot be met at t = 1.
-        others_t = np.asarray([0, *placed_t.get(m, [])], dtype=float)
-        apart = np.hypot(*(locales[placed_n.get(m, [])] - locales[n]).T)
-        gap = np.maximum(apart - 2.0 * radius, 0.0)
-        gap = np.concatenate([[max(float(np.hypot(*(starts[m] - locales[n]))) - radius, 0.0)], gap])
-        # At one step, discs that barely touch clash too (docstring).
-        apart_at_once = np.concatenate([[0.0], ~can_share_step(apart, radius)])
+        m, t = int(platform[n]), int(time[n])
+        k = int(count[m])
+        # The start (t = 0) counts as a placed visit, for speed only: a locale 1 unit from the start
+        # cannot be met at t = 1.
+        start_gap = max(float(np.hypot(*(starts[m] - locales[n]))) - radius, 0.0)
         vref = 2.0 * max(float(speed[m]), 1e-9)
-
-        def clash(
-            t: np.ndarray,
-            others_t: np.ndarray = others_t,
-            gap: np.ndarray = gap,
-            apart_at_once: np.ndarray = apart_at_once,
-            vref: float = vref,
-            fast: bool = True,
-        ) -> np.ndarray:
-            dt = np.abs(t[:, None] - others_t[None, :])
-            same = (dt == 0) & ((gap > 0) | (apart_at_once > 0))
-            if fast:
-                same = same | (dt * vref < gap)
-            same[:, 0] = same[:, 0] & fast  # the start is only a speed check
-            return np.any(same, axis=1)
-
-        t = int(time[n])
-        if clash(np.array([t]))[0]:
+        apart = np.hypot(placed_xy[m, :k, 0] - locales[n, 0], placed_xy[m, :k, 1] - locales[n, 1])
+        gap = np.maximum(apart - 2.0 * radius, 0.0)
+        # At one step, discs that barely touch clash too (docstring).
+        at_once = ~can_share_step(apart, radius)
+        if t * vref < start_gap or _clash_at(t, placed_t[m, :k], gap, at_once, vref):
             # Most probable first; among equally probable (e.g. underflowed) times, the nearest.
             wn = es.locale_weights(n)[:, m]  # (T,)
             cand = np.arange(1, wn.shape[0] + 1)
             order = cand[np.lexsort((np.abs(cand - t), -wn))]
-            pick = np.flatnonzero(~clash(order.astype(float)))
+            tried = order.astype(float)
+            pick = np.flatnonzero(~_clashes(tried, placed_t[m, :k], gap, at_once, start_gap, vref))
             if pick.size == 0:  # no time the platform can reach comfortably: at least never two at once
-                pick = np.flatnonzero(~clash(order.astype(float), fast=False))
+                pick = np.flatnonzero(~_clashes(tried, placed_t[m, :k], gap, at_once, start_gap, None))
             if pick.size:
                 t = int(order[pick[0]])
         time[n] = t
-        placed_t.setdefault(m, []).append(t)
-        placed_n.setdefault(m, []).append(n)
+        placed_xy[m, k], placed_t[m, k] = locales[n], t
+        count[m] = k + 1
     return platform, time
+
+
+def _clash_at(t: int, others: np.ndarray, gap: np.ndarray, at_once: np.ndarray, vref: float) -> bool:
+    """:func:`_clashes` of the one time ``t`` with the placed visits (the start apart), on
+    one-dimensional arrays: the check every locale's most probable time gets."""
+    if others.size == 0:
+        return False
+    dt = np.abs(t - others)
+    return bool((((dt == 0) & ((gap > 0) | at_once)) | (dt * vref < gap)).any())
+
+
+def _clashes(
+    t: np.ndarray,
+    others: np.ndarray,
+    gap: np.ndarray,
+    at_once: np.ndarray,
+    start_gap: float,
+    vref: float | None,
+) -> np.ndarray:
+    """Whether a visit at each of the times ``t`` clashes with the platform's visits placed at times
+    ``others`` (their discs ``gap`` apart, beyond reach at one step where ``at_once``) or with its start
+    (``start_gap`` away, at ``t = 0``): at one step with a disc it cannot meet at once, or, with a
+    reference speed ``vref``, farther than ``vref`` covers in the steps between (``None``: the
+    speed is not checked, nor the start)."""
+    dt = np.abs(t[:, None] - others[None, :])
+    same = (dt == 0) & ((gap > 0) | at_once)
+    if vref is None:
+        return np.any(same, axis=1)
+    same |= dt * vref < gap
+    return np.any(same, axis=1) | (np.abs(t) * vref < start_gap)
 
 
 class VisitAll(Constraint):
