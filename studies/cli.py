@@ -52,7 +52,9 @@ STUDIES: dict[str, Study] = {
         "studies.constraints_stress",
         "constraints from generous to infeasible on every backend: solved, named, verified",
     ),
-    "coverage": Study("studies.coverage", "distance at equal coverage over sensor radii, Pareto fronts"),
+    "coverage": Study(
+        "studies.coverage_study", "distance at equal coverage over sensor radii, Pareto fronts"
+    ),
 }
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from pmht_opt.cli import main
 from pmht_opt.exceptions import ConfigError
-from studies import coverage
+from studies import coverage_study as coverage
 from studies.coverage_figures import pareto_front
 from studies.store import read_rows
 

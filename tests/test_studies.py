@@ -189,6 +189,21 @@ def test_the_core_imports_no_study_module() -> None:
         assert "resource" not in names and "tqdm" not in names and "pandas" not in names, code
 
 
+def test_a_study_run_as_a_script_shadows_no_module_its_libraries_import() -> None:
+    """``python studies/NAME.py`` puts ``studies/`` first on the path, where a study module named
+    like a package wins over it: numba, for one, tries ``import coverage`` when it loads. The
+    libraries a study run loads must import from there as from anywhere else."""
+    studies = Path(__file__).resolve().parent.parent / "studies"
+    names = {p.stem for p in studies.glob("*.py")} | {p.name for p in studies.iterdir() if p.is_dir()}
+    assert "coverage" not in names
+    code = (
+        f"import sys; sys.path.insert(0, {str(studies)!r}); import matplotlib.pyplot, pandas, scipy.sparse\n"
+        "try:\n    import numba\nexcept ModuleNotFoundError:\n    pass"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+
+
 def test_python_m_studies_and_the_script_forms(tmp_path: Path) -> None:
     done = subprocess.run([sys.executable, "-m", "studies", "--help"], capture_output=True, text=True)
     assert done.returncode == 0 and "table1" in done.stdout and "python -m studies" in done.stdout
