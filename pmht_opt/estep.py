@@ -17,14 +17,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from pmht_opt.dense import DenseSums, estep_dense
 from pmht_opt.gated_sums import GatedWeights, row_maxima
 from pmht_opt.gating import GATE_MAX_FRACTION, estep_gated, gate_margin, gated_log_normalisers
 from pmht_opt.likelihood import EStepInputs
 from pmht_opt.parallel import thread_count
-from pmht_opt.weights import WEIGHTS, DenseRows, WeightsOnRead, dense_to_csr
-
-#: Weights below this are left out of an :class:`EStepSummary` (each locale's weights sum to one).
-SUMMARY_FLOOR = 1e-12
+from pmht_opt.weights import SUMMARY_FLOOR, WEIGHTS, DenseRows, EStepSummary, WeightsOnRead, dense_to_csr
 
 
 @dataclass(kw_only=True)
@@ -189,46 +187,6 @@ class EStepResult:
         )
 
 
-@dataclass(frozen=True)
-class EStepSummary:
-    """An E-step kept compactly, as a plan keeps its final one.
-
-    Attributes
-    ----------
-    weights
-        ``(N, T*M)`` sparse weights ``w[n, t*M + m]`` (visit of locale ``n`` by platform ``m`` at time
-        ``t + 1``), the entries below ``floor`` left out.
-    platform_probability
-        ``(N, M)`` probability that each locale is visited by each platform, ``sum_t w[n, t, m]``
-        computed before the floor (exact).
-    log_normaliser
-        ``(N,)`` each locale's log-likelihood term of the EM objective.
-    n_platforms
-        ``M``.
-    floor
-        The weight below which entries were left out.
-    """
-
-    weights: sp.csr_matrix
-    platform_probability: np.ndarray
-    log_normaliser: np.ndarray
-    n_platforms: int
-    floor: float = SUMMARY_FLOOR
-
-    @property
-    def n_times(self) -> int:
-        """``T``."""
-        return int(self.weights.shape[1]) // self.n_platforms
-
-    def locale_weights(self, n: int) -> np.ndarray:
-        """``(T, M)`` weights of locale ``n`` (zero below the floor)."""
-        return np.asarray(self.weights[n].toarray()).reshape(-1, self.n_platforms)
-
-    def visit_time_distribution(self, n: int) -> np.ndarray:
-        """``(T,)`` probability of each visit time of locale ``n``, over all platforms."""
-        return self.locale_weights(n).sum(axis=1)
-
-
 def log_likelihood(
     locales: np.ndarray,
     positions: np.ndarray,
@@ -324,7 +282,7 @@ def estep(
         gated = estep_gated(inputs, margin, threads)
         if gated is not None:
             return _gated_result(gated, M)
-    return _dense_estep(inputs, threads, time_totals)[0]
+    return _dense_result(estep_dense(inputs, threads, time_totals))
 
 
 def estep_scored(
@@ -368,10 +326,10 @@ def estep_scored(
             return _gated_result(gated, M), _log_likelihood(scored, margin, threads)
         lse = gated_log_normalisers(scored, margin, threads)
         if lse is not None:
-            return _dense_estep(inputs, threads, time_totals)[0], float(np.sum(lse))
-    es, score = _dense_estep(inputs, threads, time_totals, score_at)
-    assert score is not None
-    return es, float(np.sum(score))
+            return _dense_result(estep_dense(inputs, threads, time_totals)), float(np.sum(lse))
+    dense = estep_dense(inputs, threads, time_totals, score_at)
+    assert dense.score is not None
+    return _dense_result(dense), float(np.sum(dense.score))
 
 
 def _gated_result(gated: GatedWeights, M: int) -> EStepResult:
@@ -389,68 +347,20 @@ def _gated_result(gated: GatedWeights, M: int) -> EStepResult:
     )
 
 
-def _dense_estep(
-    inputs: EStepInputs, threads: int, time_totals: bool, score_at: float | None = None
-) -> tuple[EStepResult, np.ndarray | None]:
-    """The dense E-step, its statistics formed block by block on the way; with ``score_at`` also the
-    log-normalisers at that penalty (:meth:`EStepInputs.dense_blocks`)."""
-    z = inputs.locales
-    M, T, _ = inputs.positions.shape
-    N = z.shape[0]
-    TM = T * M
-    lse = np.empty(N)
-    score = None if score_at is None else np.empty(N)
-    W = np.zeros(TM)
-    WZ = np.zeros((2, TM))
-    platform, by_time = np.empty((N, M)), np.empty((N, T)) if time_totals else None
-    best_column, largest = np.empty(N, dtype=np.intp), np.empty(N)
-
-    def sums(i: int, j: int, block: np.ndarray) -> tuple[np.ndarray | None, ...]:
-        """A block's sums and its rows' statistics, formed with the block (on its thread; the block is
-        scratch, overwritten later), the sums then added in block order."""
-        ntm = block.reshape(j - i, T, M)
-        column = np.argmax(block, axis=1)
-        top = block[np.arange(j - i), column]
-        by_time = ntm.sum(axis=2) if time_totals else None
-        return block.sum(axis=0), z[i:j].T @ block, platform_sums(ntm), by_time, column, top
-
-    for block in inputs.dense_blocks(None, threads, sums, score_at):
-        i, j, parts = block.i, block.j, block.done
-        lse[i:j] = block.lse
-        if score is not None and block.score is not None:
-            score[i:j] = block.score
-        W += parts[0]
-        WZ += parts[1]
-        platform[i:j], by_block, best_column[i:j], largest[i:j] = parts[2:]
-        if by_time is not None:
-            by_time[i:j] = by_block
-    # The weights themselves are recomputed only if read (DenseRows).
-    result = EStepResult(
-        weights=DenseRows(inputs),
-        W=W.reshape(T, M),
-        WZ=WZ.T.reshape(T, M, 2),
-        log_normaliser=lse,
-        n_platforms=M,
-        inputs=inputs,
-        platform_totals=platform,
-        best_column=best_column,
-        largest=largest,
-        time_totals=by_time,
+def _dense_result(dense: DenseSums) -> EStepResult:
+    """The :class:`EStepResult` of a dense E-step: its weights are recomputed only if read."""
+    return EStepResult(
+        weights=DenseRows(dense.inputs),
+        W=dense.W,
+        WZ=dense.WZ,
+        log_normaliser=dense.log_normaliser,
+        n_platforms=dense.W.shape[1],
+        inputs=dense.inputs,
+        platform_totals=dense.platform_totals,
+        best_column=dense.best_column,
+        largest=dense.largest,
+        time_totals=dense.time_totals,
     )
-    return result, score
-
-
-def platform_sums(ntm: np.ndarray) -> np.ndarray:
-    """``ntm.sum(axis=1)`` of an ``(n, T, M)`` array, bit for bit, several times faster for ``M > 1``.
-
-    With ``M > 1`` NumPy adds the ``T`` terms of each ``(n, m)`` in order, one time step after another,
-    in an inner loop ``M`` elements long, whose overhead per call dominates; ``einsum`` adds them in the
-    same order over longer loops (tested for every ``M`` up to 24). With ``M = 1`` the terms are
-    contiguous and NumPy sums them pairwise, which ``einsum`` does not reproduce.
-    """
-    if ntm.shape[2] == 1:
-        return ntm.sum(axis=1)
-    return np.einsum("ntm->nm", ntm)
 
 
 __all__ = [

@@ -11,12 +11,16 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 
 from pmht_opt.gated_sums import SparseParts
 from pmht_opt.likelihood import EStepInputs
+
+#: Weights below this are left out of an :class:`EStepSummary` (each locale's weights sum to one).
+SUMMARY_FLOOR = 1e-12
 
 
 class DenseRows:
@@ -109,3 +113,43 @@ def kept_entries(block: np.ndarray, floor: float) -> np.ndarray:
     if floor <= 0.0:
         keep &= block != 0.0
     return keep
+
+
+@dataclass(frozen=True)
+class EStepSummary:
+    """An E-step kept compactly, as a plan keeps its final one.
+
+    Attributes
+    ----------
+    weights
+        ``(N, T*M)`` sparse weights ``w[n, t*M + m]`` (visit of locale ``n`` by platform ``m`` at time
+        ``t + 1``), the entries below ``floor`` left out.
+    platform_probability
+        ``(N, M)`` probability that each locale is visited by each platform, ``sum_t w[n, t, m]``
+        computed before the floor (exact).
+    log_normaliser
+        ``(N,)`` each locale's log-likelihood term of the EM objective.
+    n_platforms
+        ``M``.
+    floor
+        The weight below which entries were left out.
+    """
+
+    weights: sp.csr_matrix
+    platform_probability: np.ndarray
+    log_normaliser: np.ndarray
+    n_platforms: int
+    floor: float = SUMMARY_FLOOR
+
+    @property
+    def n_times(self) -> int:
+        """``T``."""
+        return int(self.weights.shape[1]) // self.n_platforms
+
+    def locale_weights(self, n: int) -> np.ndarray:
+        """``(T, M)`` weights of locale ``n`` (zero below the floor)."""
+        return np.asarray(self.weights[n].toarray()).reshape(-1, self.n_platforms)
+
+    def visit_time_distribution(self, n: int) -> np.ndarray:
+        """``(T,)`` probability of each visit time of locale ``n``, over all platforms."""
+        return self.locale_weights(n).sum(axis=1)

@@ -10,7 +10,8 @@ import pytest
 import scipy.sparse as sp
 from scipy.special import logsumexp
 
-from pmht_opt.estep import estep, estep_scored, log_likelihood, platform_sums
+from pmht_opt.dense import platform_sums
+from pmht_opt.estep import estep, estep_scored, log_likelihood
 from pmht_opt.weights import WEIGHTS
 
 
