@@ -146,7 +146,7 @@ class TreeCandidates:
         self.radius = np.sqrt(self.rho2)
         # Room for the rounding of the chunks' discs and distances, in the coordinates' units.
         if scale is None:
-            scale = max(float(np.max(np.abs(z))), float(np.max(np.abs(positions))))
+            scale = float(np.max([np.max(np.abs(z)), np.max(np.abs(positions))]))
         self.slack = 16.0 * np.finfo(float).eps * scale
         self._found: dict[tuple[int, int], Block] | None = None
         self._search_plan: _SearchPlan | None = None

@@ -61,7 +61,8 @@ class EStepResult:
     platform_totals: np.ndarray | None = field(default=None, repr=False, compare=False)
     best_column: np.ndarray | None = field(default=None, repr=False, compare=False)
     largest: np.ndarray | None = field(default=None, repr=False, compare=False)
-    #: ``sum_m w[n, t, m]`` ``(N, T)``, computed on the way by a dense E-step.
+    #: ``sum_m w[n, t, m]`` ``(N, T)``, computed on the way by a dense E-step asked for it
+    #: (``estep(time_totals=True)``); otherwise :meth:`time_prior` recomputes it from the weights.
     time_totals: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property

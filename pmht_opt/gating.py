@@ -240,7 +240,8 @@ def _choose_source(
     log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
     M, T, _ = positions.shape
     N = z.shape[0]
-    scale = max(float(np.max(np.abs(positions))), float(np.max(np.abs(z))))
+    # Not max(): a NaN second argument would lose to the first.
+    scale = float(np.max([np.max(np.abs(positions)), np.max(np.abs(z))]))
     if not scale < _SAFE_SCALE:  # also NaN
         return None
     budget = GATE_MAX_FRACTION * N * T * M

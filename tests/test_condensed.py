@@ -264,3 +264,17 @@ def test_a_terminal_point_after_a_long_coast_is_met_exactly() -> None:
     W[10:], WZ[10:] = 0.0, 0.0
     got = po.solve_mstep(sc, W, WZ, sc.r, "clarabel", [po.Terminal(position=(5.0, 5.0))])
     assert np.max(np.abs(got[:, -1, [0, 3]] - 5.0)) <= 1e-9
+
+
+def test_responses_of_no_new_rows_add_nothing() -> None:
+    """Rows already seen, or rows without entries, add no response and no solve."""
+    import scipy.sparse as sp
+
+    from pmht_opt.mstep.condensed import _Responses
+
+    C = sp.random(8, 6 * 5, density=0.3, format="csr", random_state=0).tolil()
+    C[3, :] = 0
+    responses = _Responses(sp.csr_matrix(C), factor=None, T=5)  # type: ignore[arg-type]  # never solves
+    responses._add([])
+    responses._add([3])
+    assert responses.R.shape == (15, 0) and responses._parts == {3: []}

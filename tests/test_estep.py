@@ -194,6 +194,8 @@ def test_time_totals_left_to_a_read_are_the_same() -> None:
         (0.002, 0.003, "auto", False, (True, True)),
         (0.002, 3.0, "auto", False, (True, False)),
         (0.5, 0.002, "auto", False, (False, True)),
+        (0.002, 0.003, 4.0, False, (True, True)),  # a margin of its own
+        (0.5, 3.0, 4.0, False, (False, False)),
     ],
 )
 @pytest.mark.parametrize("priors", [False, True])
@@ -228,6 +230,34 @@ def test_a_scored_estep_is_the_estep_and_the_log_likelihood(
     for name in names:
         np.testing.assert_array_equal(getattr(es, name), getattr(want, name), err_msg=name)
     np.testing.assert_array_equal(es.weights_ntm(), want.weights_ntm())
+
+
+def test_a_scored_estep_over_many_blocks_on_threads_is_the_one_thread_one(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Many blocks on two threads, each with its own scratch for the score: the same E-step and
+    score as on one thread, run after run, and the score equals ``log_likelihood``'s."""
+    from pmht_opt import likelihood
+
+    monkeypatch.setattr(likelihood, "_BLOCK", 4000)  # a dozen rows per block
+    z, pos = _paths(6, 300, 100, 4)
+    one, score = estep_scored(z, pos, None, None, 0.5, 0.8, gate="auto", threads=1)
+    assert score == log_likelihood(z, pos, None, None, 0.8, threads=1)
+    for _ in range(5):
+        two, score2 = estep_scored(z, pos, None, None, 0.5, 0.8, gate="auto", threads=2)
+        assert score2 == score
+        np.testing.assert_array_equal(two.W, one.W)
+        np.testing.assert_array_equal(two.log_normaliser, one.log_normaliser)
+
+
+def test_a_nan_locale_gives_the_same_estep_gated_or_not() -> None:
+    """A NaN coordinate sends the gate to the dense E-step (its row's likelihood is zero) instead of
+    reaching the candidate search."""
+    z = np.array([[1.0, 2.0], [np.nan, 1.0], [3.0, 3.0]])
+    pos = np.random.default_rng(0).uniform(0, 4, (2, 10, 2))
+    dense, gated = (estep(z, pos, None, None, 0.01, gate=g) for g in (None, "auto"))
+    np.testing.assert_array_equal(gated.log_normaliser, dense.log_normaliser)
+    assert gated.log_normaliser[1] == -np.inf
 
 
 @pytest.mark.parametrize("M", range(1, 25))

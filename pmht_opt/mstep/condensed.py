@@ -107,7 +107,11 @@ class _Responses:
         """Solve for the patterns of rows ``new`` not seen yet (without iterative refinement: the
         responses only form the small QP's matrix ``Sigma``, whose rounding moves the optimum ``w``
         by as little; the path itself is solved refined, :meth:`apply`)."""
+        parts: dict[int, list[tuple[int, int, float]]] = {i: [] for i in new}
         sub = self.C[new]
+        if sub.nnz == 0:  # nothing new, or rows without entries: no response to solve
+            self._parts.update(parts)
+            return
         # Every row's parts: its entries on one axis, in the matrix's order, as (row, axis) segments.
         cols, vals = sub.indices, sub.data
         segment = np.repeat(2 * np.arange(len(new)), np.diff(sub.indptr)) + (cols % STATE_DIM) // 3
@@ -119,7 +123,6 @@ class _Responses:
         idx = 3 * (cols // STATE_DIM) + cols % 3  # in the one-axis stacked states
         shape = vals / np.repeat(scale, ends - starts)
         forces: list[tuple[np.ndarray, np.ndarray]] = []
-        parts: dict[int, list[tuple[int, int, float]]] = {i: [] for i in new}
         spans = zip(starts.tolist(), ends.tolist(), segment[starts].tolist(), scale.tolist(), strict=True)
         for a, b, seg, sc in spans:
             key = idx[a:b].tobytes() + shape[a:b].tobytes()
