@@ -59,11 +59,10 @@ def block_threads(threads: int, triples: int) -> int:
     """The threads worth giving an E-step of ``triples`` triples: ``threads``, or one below
     :data:`MIN_THREADED_TRIPLES`.
 
-    A small E-step is a few blocks and a few dozen array passes of a millisecond or less in all;
-    every pass a thread finishes then waits for the interpreter lock, which the other thread holds
-    between its own passes, and the hand-overs cost more than the overlap gains (on two cores at
-    ``N T M = 2e5`` the annealing E-steps with the objective beside them took about 20% longer on
-    two threads than on one; at ``8e6`` two were 20% faster). The answer does not depend on it.
+    A small E-step is a few blocks and a few dozen array passes of well under a millisecond each.
+    Every pass a thread finishes then waits for the interpreter lock, which the other thread holds
+    between its own passes, and those hand-overs cost more than the overlap gains; large blocks
+    overlap well (docs/decisions.md section 6.11). The answer does not depend on it.
     """
     return threads if triples >= MIN_THREADED_TRIPLES else 1
 
