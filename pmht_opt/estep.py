@@ -17,7 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from pmht_opt import validation
 from pmht_opt.dense import DenseSums, estep_dense
+from pmht_opt.exceptions import ConfigError
 from pmht_opt.gated_sums import GatedWeights, row_maxima
 from pmht_opt.gating import GATE_MAX_FRACTION, estep_gated, gate_margin, gated_log_normalisers
 from pmht_opt.likelihood import EStepInputs
@@ -213,9 +215,20 @@ def log_likelihood(
     float
         ``sum_n log sum_{t,m} pi^tau[n,t] pi^k[n,m] zeta(z_n | x_t^m)``.
     """
+    margin, threads = _settings(positions, gate, threads)
+    inputs = EStepInputs(locales, positions, log_time_prior, log_platform_prior, _penalty("r", r))
+    return _log_likelihood(inputs, margin, threads)
+
+
+def _settings(positions: np.ndarray, gate: float | str | None, threads: int) -> tuple[float | None, int]:
+    """The gate's margin and the thread count, checked (:class:`ConfigError` naming the field)."""
     M, T, _ = positions.shape
-    inputs = EStepInputs(locales, positions, log_time_prior, log_platform_prior, r)
-    return _log_likelihood(inputs, gate_margin(gate, T, M), thread_count(threads))
+    return gate_margin(gate, T, M), thread_count(threads)
+
+
+def _penalty(field: str, r: float) -> float:
+    """A penalty ``r`` as a positive finite float; :class:`ConfigError` naming ``field`` otherwise."""
+    return validation.real(field, r, ConfigError, lo=0.0, lo_open=True)
 
 
 def _log_likelihood(inputs: EStepInputs, margin: float | None, threads: int) -> float:
@@ -275,14 +288,13 @@ def estep(
         needs it, and the sum over the few platforms of every ``(n, t)`` costs as much as the rest of
         the statistics together.
     """
-    M, T, _ = positions.shape
-    margin = gate_margin(gate, T, M)
-    threads = thread_count(threads)
-    inputs = EStepInputs(locales, positions, log_time_prior, log_platform_prior, r)
+    margin, threads = _settings(positions, gate, threads)
+    time_totals = validation.flag("time_totals", time_totals)
+    inputs = EStepInputs(locales, positions, log_time_prior, log_platform_prior, _penalty("r", r))
     if margin is not None:
         gated = estep_gated(inputs, margin, threads)
         if gated is not None:
-            return _gated_result(gated, M)
+            return _gated_result(gated, positions.shape[0])
     return _dense_result(estep_dense(inputs, threads, time_totals))
 
 
@@ -316,11 +328,12 @@ def estep_scored(
     tuple[EStepResult, float]
         The E-step at ``r`` and the log-likelihood at ``score_at``.
     """
-    M, T, _ = positions.shape
-    margin = gate_margin(gate, T, M)
-    threads = thread_count(threads)
-    inputs = EStepInputs(locales, positions, log_time_prior, log_platform_prior, r)
+    margin, threads = _settings(positions, gate, threads)
+    time_totals = validation.flag("time_totals", time_totals)
+    inputs = EStepInputs(locales, positions, log_time_prior, log_platform_prior, _penalty("r", r))
+    score_at = _penalty("score_at", score_at)
     scored = EStepInputs(locales, positions, log_time_prior, log_platform_prior, score_at)
+    M = positions.shape[0]
     if margin is not None:
         gated = estep_gated(inputs, margin, threads)
         if gated is not None:

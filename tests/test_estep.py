@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import tracemalloc
+from typing import Any
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ from scipy.special import logsumexp
 
 from pmht_opt.dense import platform_sums
 from pmht_opt.estep import estep, estep_scored, log_likelihood
+from pmht_opt.exceptions import ConfigError
 from pmht_opt.weights import WEIGHTS
 
 
@@ -248,6 +250,21 @@ def test_a_scored_estep_over_many_blocks_on_threads_is_the_one_thread_one(
         assert score2 == score
         np.testing.assert_array_equal(two.W, one.W)
         np.testing.assert_array_equal(two.log_normaliser, one.log_normaliser)
+
+
+@pytest.mark.parametrize(
+    ("call", "field"),
+    [
+        (lambda z, p: estep(z, p, None, None, -1.0), "r"),
+        (lambda z, p: log_likelihood(z, p, None, None, "a"), "r"),
+        (lambda z, p: estep_scored(z, p, None, None, 0.1, float("nan")), "score_at"),
+        (lambda z, p: estep(z, p, None, None, 0.1, time_totals="yes"), "time_totals"),
+    ],
+)
+def test_bad_penalties_and_flags_are_config_errors(call: Any, field: str) -> None:
+    z, pos = np.ones((3, 2)), np.zeros((2, 5, 2))
+    with pytest.raises(ConfigError, match=f"^{field}: expected"):
+        call(z, pos)
 
 
 def test_a_nan_locale_gives_the_same_estep_gated_or_not() -> None:
