@@ -19,8 +19,9 @@ from pmht_opt.smoothed import sub_batches
 
 ITERATIONS = {"clarabel": 8, "osqp": 4, "cvxpy": 8}
 #: OSQP's first solve with the visit rows takes thousands of ADMM iterations: it plans the same tours
-#: over 150 of the paper's 500 steps (same locales and assertions, a sixth of the time; at 100 steps
-#: OSQP stops at its iteration limit). cvxpy, whose compile and solves scale with the horizon, over 250.
+#: over 150 of the paper's 500 steps (same locales and assertions, about half the time of 250; at 100
+#: steps OSQP stops at its iteration limit). cvxpy, whose compile and solves scale with the horizon,
+#: over 250.
 HORIZON = {"osqp": 150, "cvxpy": 250}
 
 
