@@ -70,7 +70,6 @@ from __future__ import annotations
 import functools
 import threading
 from collections import OrderedDict
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -87,9 +86,11 @@ MIN_STEPS_PER_THREAD = 1000
 MAX_PARTS = 64
 
 
-@dataclass
 class BandedSmootherResult:
     """Smoothed means and the parts of the objective, per system and column.
+
+    Formed from the solution of the KKT system on first use (a caller that reads the states only
+    pays for no objective), each the same numbers whenever it is formed.
 
     Attributes
     ----------
@@ -108,16 +109,65 @@ class BandedSmootherResult:
         ``max_i |b - A z|_i / (|A| |z| + |b|)_i``, when asked for (``check=True``); else ``None``.
     """
 
-    means: np.ndarray
-    noise: np.ndarray
-    prior: np.ndarray
-    fit: np.ndarray
-    backward_error: float | None = None
+    def __init__(
+        self,
+        z: np.ndarray,
+        x0: np.ndarray,
+        y: np.ndarray,
+        rho: np.ndarray,
+        L: np.ndarray,
+        h: np.ndarray,
+        backward_error: float | None = None,
+    ) -> None:
+        # z: (K, B, T, 2n) rows [lam_t, x_t] in the model's units; y: (K, B, T); x0: (B, n, K).
+        self._z, self._x0, self._y, self._rho, self._L, self._h = z, x0, y, rho, L, h
+        self.backward_error = backward_error
+
+    @functools.cached_property
+    def _noise_k(self) -> np.ndarray:
+        """``(K, B, T, n)`` rows ``(L' lam_t)'``."""
+        n = self._x0.shape[1]
+        return np.asarray(self._z[..., :n] @ self._L)
+
+    @functools.cached_property
+    def means(self) -> np.ndarray:
+        B, n, K = self._x0.shape
+        means = np.empty((B, self._z.shape[2] + 1, n, K))
+        means[:, 0] = self._x0
+        means[:, 1:] = np.moveaxis(self._z[..., n:], 0, -1)
+        return means
+
+    @functools.cached_property
+    def noise(self) -> np.ndarray:
+        return np.moveaxis(self._noise_k, 0, -1)
+
+    @functools.cached_property
+    def prior(self) -> np.ndarray:
+        noise = self._noise_k
+        return np.asarray(0.5 * np.einsum("kbti,kbti->bk", noise, noise))
+
+    @functools.cached_property
+    def fit(self) -> np.ndarray:
+        n = self._x0.shape[1]
+        innov = self._y - self._z[..., n:] @ self._h
+        return np.asarray(0.5 * np.einsum("bt,kbt->bk", self._rho, innov * innov))
 
     @property
     def objective(self) -> np.ndarray:
         """``(B, K)``: ``J = prior + fit`` at the smoothed means."""
         return np.asarray(self.prior + self.fit)
+
+    def side_by_side(self) -> tuple[np.ndarray, np.ndarray]:
+        """The columns' states and noise side by side: ``(B, T+1, K n)`` states (column ``k``'s in
+        ``[k n, (k + 1) n)``, the start first) and ``(B, T, K n)`` whitened noise; the values of
+        :attr:`means` and :attr:`noise`, laid out in one copy each."""
+        B, n, K = self._x0.shape
+        T = self._z.shape[2]
+        states = np.empty((B, T + 1, K, n))
+        states[:, 0] = np.moveaxis(self._x0, 2, 1)
+        states[:, 1:] = self._z[..., n:].transpose(1, 2, 0, 3)
+        noise = np.ascontiguousarray(self._noise_k.transpose(1, 2, 0, 3))
+        return states.reshape(B, T + 1, K * n), noise.reshape(B, T, K * n)
 
 
 class BandedSmoother:
@@ -401,26 +451,10 @@ class BandedSmoother:
     def _result(
         self, z: np.ndarray, x0: np.ndarray, yk: np.ndarray, rho: np.ndarray, backward_error: float | None
     ) -> BandedSmootherResult:
-        """The means and the objective's parts from the scaled solution ``z`` (``(K, B, T, 2n)``, scaled
-        in place back to the model's units)."""
-        n, T, B, K = self.n, self.T, self.B, z.shape[0]
+        """The result of the scaled solution ``z`` (``(K, B, T, 2n)``, scaled in place back to the
+        model's units)."""
         z *= self._unscale
-        lam = z[..., :n]
-        states = z[..., n:]
-        noise = lam @ self.L  # rows (L' lam_t)'
-        innov = yk - states @ self.h
-        prior = 0.5 * np.einsum("kbti,kbti->bk", noise, noise)
-        fit = 0.5 * np.einsum("bt,kbt->bk", rho, innov * innov)
-        means = np.empty((B, T + 1, n, K))
-        means[:, 0] = x0
-        means[:, 1:] = np.moveaxis(states, 0, -1)
-        return BandedSmootherResult(
-            means=means,
-            noise=np.moveaxis(noise, 0, -1),
-            prior=prior,
-            fit=fit,
-            backward_error=backward_error,
-        )
+        return BandedSmootherResult(z, x0, yk, rho, self.L, self.h, backward_error)
 
     def _residual(self, z: np.ndarray, xs0: np.ndarray, yk: np.ndarray, rho: np.ndarray) -> np.ndarray:
         """``b - A z`` of the scaled KKT system, evaluated from its block form.

@@ -429,6 +429,25 @@ def test_batch_and_columns_are_independent() -> None:
             np.testing.assert_allclose(together[b, :, :, k], alone.means[0, :, :, 0], rtol=1e-13, atol=1e-13)
 
 
+@pytest.mark.parametrize("K", [1, 2, 3])
+def test_side_by_side_is_the_means_and_noise_laid_out(K: int) -> None:
+    rng = np.random.default_rng(9)
+    F, Q = ca_model(1.0, 1e-6)
+    W, y, x0 = make_batch(rng, 4, 60, K=K, kind="coast")
+    res = banded_smoother(F, Q, E1, 1e-2, x0, y, W)
+    states, noise = res.side_by_side()  # formed before the means: no shared cache decides the values
+    assert states.shape == (4, 61, 3 * K) and noise.shape == (4, 60, 3 * K)
+    for k in range(K):
+        np.testing.assert_array_equal(states[:, :, 3 * k : 3 * k + 3], res.means[..., k])
+        np.testing.assert_array_equal(noise[:, :, 3 * k : 3 * k + 3], res.noise[..., k])
+    np.testing.assert_array_equal(states[:, 0], np.concatenate([x0[..., k] for k in range(K)], axis=1))
+    # The objective's parts, formed on first use, are those of the means.
+    u = res.noise
+    np.testing.assert_allclose(res.prior, 0.5 * np.einsum("btik,btik->bk", u, u), rtol=1e-13)
+    innov = y - res.means[:, 1:, 0, :]
+    np.testing.assert_allclose(res.fit, 0.5 * np.einsum("bt,btk->bk", W / 1e-2, innov**2), rtol=1e-12)
+
+
 def test_a_measured_component_alone_gives_the_general_products_bit_for_bit() -> None:
     """Where ``h`` picks one component the penalty's products work on that column only; the answer,
     its noise and objective are those of the general products, to the last bit."""

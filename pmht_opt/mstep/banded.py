@@ -42,15 +42,5 @@ class BandedMStep(MStep):
             raise SolverError(f"banded: the M-step cannot be solved: {err}", "banded", "error") from err
 
     def _solve(self, data: MStepData) -> MStepOutput:
-        res = self.smooth(data)
-        return MStepOutput(
-            states=axis_states(res.means),
-            status=solvers.Status.OPTIMAL,
-            raw_status="exact",
-            noise=axis_states(res.noise),
-        )
-
-
-def axis_states(arr: np.ndarray) -> np.ndarray:
-    """``(M, T', 3, 2)`` per-axis arrays as ``(M, T', 6)`` states ``[px, vx, ax, py, vy, ay]``."""
-    return np.concatenate([arr[..., 0], arr[..., 1]], axis=2)
+        states, noise = self.smooth(data).side_by_side()  # x then y: [px, vx, ax, py, vy, ay]
+        return MStepOutput(states=states, status=solvers.Status.OPTIMAL, raw_status="exact", noise=noise)

@@ -12,7 +12,6 @@ import solvers
 from pmht_opt.constraints.base import Constraint
 from pmht_opt.constraints.blocks import Block
 from pmht_opt.exceptions import ConfigError, InfeasibleError, PmhtOptError, SolverError, UnknownSolverError
-from pmht_opt.mstep.banded import axis_states
 from pmht_opt.mstep.base import MStep, MStepData, MStepOutput, check_cvxpy_solver
 from pmht_opt.mstep.diagnosis import diagnose
 from pmht_opt.mstep.platform import PlatformQP
@@ -190,8 +189,7 @@ class QPMStep(MStep):
     def _solve(self, data: MStepData) -> MStepOutput:
         rows = self.rows.rows(data.ctx, data.active, data.strengths)
         exact = self.reference().smooth(data)
-        exact_states = self._with_start(axis_states(exact.means[:, 1:]))
-        exact_noise = axis_states(exact.noise)
+        exact_states, exact_noise = exact.side_by_side()
         active = self._screen(data, rows, exact_states)
 
         constrained = any(r.items for r in rows.values())
