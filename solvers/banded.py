@@ -452,9 +452,10 @@ class BandedSmoother:
         self, z: np.ndarray, x0: np.ndarray, yk: np.ndarray, rho: np.ndarray, backward_error: float | None
     ) -> BandedSmootherResult:
         """The result of the scaled solution ``z`` (``(K, B, T, 2n)``, scaled in place back to the
-        model's units)."""
+        model's units). It keeps its own copies of the caller's ``x0`` and ``y``, which it reads
+        when its parts are first asked for."""
         z *= self._unscale
-        return BandedSmootherResult(z, x0, yk, rho, self.L, self.h, backward_error)
+        return BandedSmootherResult(z, x0.copy(), yk.copy(), rho, self.L, self.h, backward_error)
 
     def _residual(self, z: np.ndarray, xs0: np.ndarray, yk: np.ndarray, rho: np.ndarray) -> np.ndarray:
         """``b - A z`` of the scaled KKT system, evaluated from its block form.

@@ -435,16 +435,20 @@ def test_side_by_side_is_the_means_and_noise_laid_out(K: int) -> None:
     F, Q = ca_model(1.0, 1e-6)
     W, y, x0 = make_batch(rng, 4, 60, K=K, kind="coast")
     res = banded_smoother(F, Q, E1, 1e-2, x0, y, W)
+    # The parts are formed on first use, from the data as they were passed: the result does not read
+    # the caller's arrays again.
+    y_passed, x0_passed = y.copy(), x0.copy()
+    y += 1.0
+    x0 += 1.0
     states, noise = res.side_by_side()  # formed before the means: no shared cache decides the values
     assert states.shape == (4, 61, 3 * K) and noise.shape == (4, 60, 3 * K)
     for k in range(K):
         np.testing.assert_array_equal(states[:, :, 3 * k : 3 * k + 3], res.means[..., k])
         np.testing.assert_array_equal(noise[:, :, 3 * k : 3 * k + 3], res.noise[..., k])
-    np.testing.assert_array_equal(states[:, 0], np.concatenate([x0[..., k] for k in range(K)], axis=1))
-    # The objective's parts, formed on first use, are those of the means.
+    np.testing.assert_array_equal(res.means[:, 0], x0_passed)
     u = res.noise
     np.testing.assert_allclose(res.prior, 0.5 * np.einsum("btik,btik->bk", u, u), rtol=1e-13)
-    innov = y - res.means[:, 1:, 0, :]
+    innov = y_passed - res.means[:, 1:, 0, :]
     np.testing.assert_allclose(res.fit, 0.5 * np.einsum("bt,btk->bk", W / 1e-2, innov**2), rtol=1e-12)
 
 
