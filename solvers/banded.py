@@ -139,7 +139,8 @@ class BandedSmootherResult:
 
     @functools.cached_property
     def noise(self) -> np.ndarray:
-        return np.moveaxis(self._noise_k, 0, -1)
+        # A copy: a caller that changes it must not change the objective's parts formed later.
+        return np.moveaxis(self._noise_k, 0, -1).copy()
 
     @functools.cached_property
     def prior(self) -> np.ndarray:
@@ -166,7 +167,7 @@ class BandedSmootherResult:
         states = np.empty((B, T + 1, K, n))
         states[:, 0] = np.moveaxis(self._x0, 2, 1)
         states[:, 1:] = self._z[..., n:].transpose(1, 2, 0, 3)
-        noise = np.ascontiguousarray(self._noise_k.transpose(1, 2, 0, 3))
+        noise = self._noise_k.transpose(1, 2, 0, 3).copy()  # a copy even where the transpose is one
         return states.reshape(B, T + 1, K * n), noise.reshape(B, T, K * n)
 
 
@@ -223,7 +224,7 @@ class BandedSmoother:
         if int(batch) != batch or batch < 1:
             raise ProblemError(f"batch must be a positive integer, got {batch!r}.")
         self.n, self.T, self.B = n, int(horizon), int(batch)
-        self.F, self.Q, self.h, self.L = F, Q, h, L
+        self.F, self.Q, self.h, self.L = F.copy(), Q.copy(), h.copy(), L  # the caller's may change
         # Dimensionless unknowns: x = d * xs, lam = lam_s / d (module docstring).
         d = np.sqrt(np.diag(Q))
         self.d = d

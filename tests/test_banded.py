@@ -446,7 +446,11 @@ def test_side_by_side_is_the_means_and_noise_laid_out(K: int) -> None:
         np.testing.assert_array_equal(states[:, :, 3 * k : 3 * k + 3], res.means[..., k])
         np.testing.assert_array_equal(noise[:, :, 3 * k : 3 * k + 3], res.noise[..., k])
     np.testing.assert_array_equal(res.means[:, 0], x0_passed)
-    u = res.noise
+    # What a caller does to the arrays it gets changes nothing the result forms later.
+    u = res.noise.copy()
+    noise[:] = 0.0
+    res.noise[:] = 0.0
+    np.testing.assert_array_equal(res.side_by_side()[1][:, :, 0:3], u[..., 0])
     np.testing.assert_allclose(res.prior, 0.5 * np.einsum("btik,btik->bk", u, u), rtol=1e-13)
     innov = y_passed - res.means[:, 1:, 0, :]
     np.testing.assert_allclose(res.fit, 0.5 * np.einsum("bt,btk->bk", W / 1e-2, innov**2), rtol=1e-12)
