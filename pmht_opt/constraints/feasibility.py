@@ -28,7 +28,6 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.sparse.csgraph import minimum_spanning_tree
 
 from pmht_opt.constraints.area import AreaBounds
 from pmht_opt.constraints.base import Constraint
@@ -80,6 +79,8 @@ def covering_length(locales: np.ndarray, starts: np.ndarray, radius: float) -> f
     tiny = 1e-300
     graph = np.where(graph > 0, graph, tiny)
     np.fill_diagonal(graph, 0.0)
+    from scipy.sparse.csgraph import minimum_spanning_tree  # only here: 50 ms of every import
+
     return float(minimum_spanning_tree(graph).sum())
 
 
