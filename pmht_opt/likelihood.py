@@ -42,13 +42,13 @@ def log_const(r: float, T: int, M: int, uniform_time: bool, uniform_platform: bo
     return const
 
 
-def log_weights_from_d2(d2: np.ndarray, r: float, const: float) -> np.ndarray:
-    """``-d2 / 2r - const`` in place. The dense E-step, the gated one and the row recompute all use
-    this and the same elementwise ``(zx - px)^2 + (zy - py)^2``, so they give bit-identical log weights
-    (ties among times or platforms are then broken alike)."""
-    d2 *= -0.5 / r
-    d2 -= const
-    return d2
+def log_weights_from_d2(d2: np.ndarray, r: float, const: float, out: np.ndarray | None = None) -> np.ndarray:
+    """``-d2 / 2r - const``, in place or into ``out`` (``d2`` then unchanged). The dense E-step, the
+    gated one and the row recompute all use this and the same elementwise ``(zx - px)^2 + (zy - py)^2``,
+    so they give bit-identical log weights (ties among times or platforms are then broken alike)."""
+    out = np.multiply(d2, -0.5 / r, out=d2 if out is None else out)
+    out -= const
+    return out
 
 
 def squared_distance(
@@ -157,8 +157,7 @@ class EStepInputs:
             score = None
             if score_at is not None and const2 is not None:
                 other = scratch("dense_score", j - i, TM)
-                np.copyto(other, rows)
-                score = _normalise_rows(other, score_at, const2, priors, distance2, part, T, M, False)
+                score = _normalise_rows(rows, score_at, const2, priors, distance2, part, T, M, False, other)
             lse = _normalise_rows(rows, self.r, const, priors, distance2, part, T, M, keep)
             return DenseBlock(i, j, lse, None if finish is None else finish(i, j, rows), score)
 
@@ -227,12 +226,14 @@ def _normalise_rows(
     T: int,
     M: int,
     weights: bool = True,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The squared distances ``d2`` of ``block``'s rows turned, in place, into their normalised weights
-    at penalty ``r`` (unnormalised without ``weights``: for a caller that wants the log-normalisers
-    only); returns the rows' log-normalisers. Every row is computed on its own, with the same operations
-    whatever the block: the E-step and the exact row recompute agree bit for bit."""
-    ll = log_weights_from_d2(d2, r, const)
+    """The squared distances ``d2`` of ``block``'s rows turned, in place or into ``out`` (``d2`` then
+    unchanged), into their normalised weights at penalty ``r`` (unnormalised without ``weights``: for a
+    caller that wants the log-normalisers only); returns the rows' log-normalisers. Every row is
+    computed on its own, with the same operations whatever the block: the E-step and the exact row
+    recompute agree bit for bit."""
+    ll = log_weights_from_d2(d2, r, const, out)
     for rows in priors:
         if rows is not None:
             ll += rows
