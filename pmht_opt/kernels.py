@@ -36,15 +36,16 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.exceptions import ConfigError
+from solvers import band_kernels
 
-#: ``PMHT_OPT_KERNELS``: ``0`` runs the numpy passes even where numba is installed, ``1`` the compiled
-#: loops at every size, ``auto`` (or unset) the compiled loops for E-steps of at least
-#: :data:`MIN_TRIPLES` triples.
+#: ``PMHT_OPT_KERNELS``: ``0`` runs the numpy passes and LAPACK even where numba is installed; ``1``
+#: the compiled loops of the E-step at every size; ``auto`` (or unset) those loops for E-steps of at
+#: least :data:`MIN_TRIPLES` triples. Under ``1`` and ``auto`` the exact M-step's banded LU runs as
+#: compiled loops at every size (:func:`lu_compiled`).
 ENV_SWITCH = "PMHT_OPT_KERNELS"
-#: Importing numba and loading the cached loops costs about 0.3-0.6 s, once per process (about 2 s the
-#: first time, when they are compiled): more than the loops save on a plan of the paper's size
-#: (``N T M = 2e5``, about 0.2 ms per E-step), far less than at ``N T M = 5e8`` (about 0.4 s per
-#: E-step). Smaller E-steps run the numpy passes, with the same numbers.
+#: Below this size the E-step's compiled loops save little (about 0.2 ms of an E-step of the paper's
+#: size, ``N T M = 2e5``), less than importing numba and loading them costs a process that would not
+#: otherwise load it (about 0.1-0.2 s); at ``N T M = 5e8`` they save about 0.4 s per E-step.
 MIN_TRIPLES = 1 << 23
 
 _LOCK = threading.Lock()
@@ -62,6 +63,18 @@ def _switch() -> str:
 def available() -> bool:
     """Whether the compiled loops can run (numba importable and the switch not ``0``)."""
     return _switch() != "0" and _load() is not None
+
+
+def lu_compiled() -> bool:
+    """Whether the exact M-step's banded LU runs as compiled loops (:mod:`solvers.band_kernels`):
+    numba installed and the switch not ``0``.
+
+    At every size: on the paper's scenario they take about 0.5 ms of the M-step's 1.5-2 ms per
+    iteration, about 10% of a plan, so the one import of numba per process (about 0.1-0.2 s) is
+    repaid within a few plans. With SciPy's OpenBLAS on a processor with fused multiply-add their
+    numbers equal LAPACK's to the last bit (docs/decisions.md section 1.12).
+    """
+    return _switch() != "0" and band_kernels.available()
 
 
 def compiled(triples: int) -> SimpleNamespace | None:

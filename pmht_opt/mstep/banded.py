@@ -16,6 +16,7 @@ from typing import ClassVar
 import numpy as np
 
 import solvers
+from pmht_opt import kernels
 from pmht_opt.exceptions import SolverError
 from pmht_opt.mstep.base import MStep, MStepData, MStepOutput
 from solvers.banded import BandedSmoother, BandedSmootherResult
@@ -29,7 +30,12 @@ class BandedMStep(MStep):
     def __init__(self, *args: object, **kwargs: object) -> None:
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
         self.smoother = BandedSmoother(
-            self.model.F3, self.model.Q3, np.array([1.0, 0.0, 0.0]), self.T, self.M
+            self.model.F3,
+            self.model.Q3,
+            np.array([1.0, 0.0, 0.0]),
+            self.T,
+            self.M,
+            compiled=kernels.lu_compiled(),
         )
 
     def smooth(self, data: MStepData) -> BandedSmootherResult:
