@@ -74,7 +74,7 @@ def estep_gated(inputs: EStepInputs, margin: float, threads: int = 1) -> GatedWe
     of a block's size; only the weights and their columns, which the CSR matrix keeps, grow with
     the number of triples.
     """
-    loops = _loops(inputs)
+    loops = _loops()
     out = GatedAccumulator(inputs, *_sizes(inputs), loops)
     for block in _gated_blocks(inputs, margin, threads, out.prepare, loops):
         if block is None:
@@ -87,18 +87,17 @@ def gated_log_normalisers(inputs: EStepInputs, margin: float, threads: int = 1) 
     """The log-normalisers of :func:`estep_gated` alone (bit for bit), without keeping its weights;
     ``None`` where it would give way to the dense E-step."""
     lse = np.empty(inputs.locales.shape[0])
-    for block in _gated_blocks(inputs, margin, threads, lambda b: (b[0], b[1], b[-1]), _loops(inputs)):
+    for block in _gated_blocks(inputs, margin, threads, lambda b: (b[0], b[1], b[-1]), _loops()):
         if block is None:
             return None
         lo, hi, lse[lo:hi] = block
     return lse
 
 
-def _loops(inputs: EStepInputs) -> Any:
+def _loops() -> Any:
     """The compiled loops for this E-step, or ``None`` for the numpy passes: decided once per E-step,
     so that every block of it is computed, and summed, the same way."""
-    N, T, M = _sizes(inputs)
-    return kernels.compiled(N * T * M)
+    return kernels.compiled()
 
 
 def _sizes(inputs: EStepInputs) -> tuple[int, int, int]:

@@ -8,9 +8,10 @@ and the sums ``W`` and ``WZ`` over all triples. At large sizes (tens of millions
 E-step) each pass is a trip through memory with arrays of the block's size. The loops here do the
 same work in fewer passes (the search; the log weights with their maxima; the gate; the locales'
 sums and the division by them; the columns with the rows' statistics; the ordered sums), each
-reading and writing only what the next one needs. At
-``N = 5000, T = 5000, M = 20`` a gated E-step takes about 0.35-0.45 s on two threads against
-0.75-0.9 s for the numpy passes (docs/decisions.md section 6.9).
+reading and writing only what the next one needs, and without the numpy calls' overheads, which
+dominate small E-steps. At ``N = 5000, T = 5000, M = 20`` a gated E-step takes about 0.35-0.45 s on
+two threads against 0.75-0.9 s for the numpy passes (docs/decisions.md section 6.9); a default plan
+of the paper's scenario A about 10% less time (section 1.12).
 
 They give the same numbers to the last bit: every value is formed by the same IEEE operations in the
 same order as the numpy passes (no fused multiply-add, no reassociation: numba compiles without fast
@@ -19,10 +20,9 @@ and the two transcendental steps, ``exp`` of the log weights and ``log`` of the 
 to numpy, whose SIMD ``exp`` need not round like the C library's. ``tests/test_kernels.py`` checks
 the identity on random and adversarial blocks.
 
-numba is imported on first use only (``import pmht_opt`` stays free of it), and only for E-steps of at
-least :data:`MIN_TRIPLES` triples; the compiled code is cached on disk, so the compilation is paid
-once per installation. The loops release the interpreter lock, so the blocks run on concurrent
-threads as the numpy passes do.
+numba is imported on first use only (``import pmht_opt`` stays free of it), about 0.1-0.2 s once per
+process; the compiled code is cached on disk, so the compilation is paid once per installation. The
+loops release the interpreter lock, so the blocks run on concurrent threads as the numpy passes do.
 """
 
 from __future__ import annotations
@@ -38,15 +38,11 @@ import numpy as np
 from pmht_opt.exceptions import ConfigError
 from solvers import band_kernels
 
-#: ``PMHT_OPT_KERNELS``: ``0`` runs the numpy passes and LAPACK even where numba is installed; ``1``
-#: the compiled loops of the E-step at every size; ``auto`` (or unset) those loops for E-steps of at
-#: least :data:`MIN_TRIPLES` triples. Under ``1`` and ``auto`` the exact M-step's banded LU runs as
-#: compiled loops at every size (:func:`lu_compiled`).
+#: ``PMHT_OPT_KERNELS``: ``0`` runs the numpy passes and LAPACK even where numba is installed; ``auto``
+#: (or unset) and ``1`` run the compiled loops of the E-step and of the exact M-step's banded LU
+#: (:func:`lu_compiled`) wherever numba is installed, at every size: measured faster from the
+#: smallest plans on (docs/decisions.md section 1.12).
 ENV_SWITCH = "PMHT_OPT_KERNELS"
-#: Below this size the E-step's compiled loops save little (about 0.2 ms of an E-step of the paper's
-#: size, ``N T M = 2e5``), less than importing numba and loading them costs a process that would not
-#: otherwise load it (about 0.1-0.2 s); at ``N T M = 5e8`` they save about 0.4 s per E-step.
-MIN_TRIPLES = 1 << 23
 
 _LOCK = threading.Lock()
 _COMPILED: SimpleNamespace | None = None
@@ -61,29 +57,27 @@ def _switch() -> str:
 
 
 def available() -> bool:
-    """Whether the compiled loops can run (numba importable and the switch not ``0``)."""
-    return _switch() != "0" and _load() is not None
+    """Whether the E-step's compiled loops run (numba importable and the switch not ``0``)."""
+    return compiled() is not None
 
 
 def lu_compiled() -> bool:
     """Whether the exact M-step's banded LU runs as compiled loops (:mod:`solvers.band_kernels`):
     numba installed and the switch not ``0``.
 
-    At every size: on the paper's scenario they take about 0.5 ms of the M-step's 1.5-2 ms per
-    iteration, about 10% of a plan, so the one import of numba per process (about 0.1-0.2 s) is
-    repaid within a few plans. With SciPy's OpenBLAS on a processor with fused multiply-add their
-    numbers equal LAPACK's to the last bit (docs/decisions.md section 1.12).
+    At every size: on the smoother's band they are about three times as fast as LAPACK's routines
+    (which make four BLAS calls per column), about 15% of a default plan of the paper's scenario A,
+    so the one import of numba per process is repaid within a few plans. With SciPy's OpenBLAS on a
+    processor with fused multiply-add their numbers equal LAPACK's to the last bit
+    (docs/decisions.md section 1.12).
     """
     return _switch() != "0" and band_kernels.available()
 
 
-def compiled(triples: int) -> SimpleNamespace | None:
-    """The compiled loops for an E-step of ``triples = N T M`` triples, or ``None`` where the numpy
-    passes run: numba missing, the switch ``0``, or (switch ``auto``) fewer than :data:`MIN_TRIPLES`."""
-    switch = _switch()
-    if switch == "0" or (switch == "auto" and triples < MIN_TRIPLES):
-        return None
-    return _load()
+def compiled() -> SimpleNamespace | None:
+    """The E-step's compiled loops, or ``None`` where the numpy passes run: numba missing or the
+    switch ``0``."""
+    return None if _switch() == "0" else _load()
 
 
 def _load() -> SimpleNamespace | None:

@@ -67,8 +67,8 @@ def load_average() -> float | None:
 
 def provenance() -> dict[str, Any]:
     """Commit, dirty flag, package versions, Python, machine, CPU count, load average, date, command and
-    the switch of the E-step's compiled loops (``PMHT_OPT_KERNELS``, ``None`` if unset: they run from
-    :data:`pmht_opt.kernels.MIN_TRIPLES` triples on where numba is installed; the numbers are the same).
+    the switch of the compiled loops (``PMHT_OPT_KERNELS``, ``None`` if unset: they run wherever numba
+    is installed, which ``packages`` records).
 
     ``commit`` and ``dirty`` are ``None`` outside a git checkout (an installed copy of the studies).
     """

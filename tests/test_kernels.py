@@ -147,7 +147,7 @@ def test_the_loops_uncompiled_give_the_numpy_bits(monkeypatch: Any) -> None:
     monkeypatch.setenv(kernels.ENV_SWITCH, "0")
     plain = estep(z, pos, lt, lk, r, gate="auto")
     python = SimpleNamespace(**kernels.LOOPS)
-    monkeypatch.setattr(kernels, "compiled", lambda triples: python)
+    monkeypatch.setattr(kernels, "compiled", lambda: python)
     slow = estep(z, pos, lt, lk, r, gate="auto")
     assert plain.gated
     _assert_identical(plain, slow)
@@ -166,22 +166,19 @@ def test_without_numba_the_numpy_passes_run(monkeypatch: Any) -> None:
 
 
 def test_the_switch(monkeypatch: Any) -> None:
-    """``0`` never, ``1`` always, ``auto`` from :data:`~pmht_opt.kernels.MIN_TRIPLES` on; anything
-    else is refused, naming the variable."""
-    big, small = kernels.MIN_TRIPLES, kernels.MIN_TRIPLES - 1
+    """``0`` never; ``1``, ``auto`` and unset wherever numba is installed, at any size; anything else
+    is refused, naming the variable."""
     monkeypatch.setenv(kernels.ENV_SWITCH, "0")
-    assert kernels.compiled(big) is None and not kernels.available()
-    for value in ("auto", "", " AUTO "):
+    assert kernels.compiled() is None and not kernels.available() and not kernels.lu_compiled()
+    for value in ("auto", "", " AUTO ", "1"):
         monkeypatch.setenv(kernels.ENV_SWITCH, value)
-        assert kernels.compiled(small) is None
-        assert (kernels.compiled(big) is not None) == kernels.available()
+        assert (kernels.compiled() is not None) == kernels.available() == kernels.lu_compiled()
     monkeypatch.delenv(kernels.ENV_SWITCH)
-    assert kernels.compiled(small) is None
-    monkeypatch.setenv(kernels.ENV_SWITCH, "1")
-    assert (kernels.compiled(1) is not None) == kernels.available()
+    assert (kernels.compiled() is not None) == kernels.lu_compiled()
     monkeypatch.setenv(kernels.ENV_SWITCH, "yes")
-    with pytest.raises(po.ConfigError, match=kernels.ENV_SWITCH):
-        kernels.compiled(big)
+    for ask in (kernels.compiled, kernels.lu_compiled):
+        with pytest.raises(po.ConfigError, match=kernels.ENV_SWITCH):
+            ask()
 
 
 @needs_numba
