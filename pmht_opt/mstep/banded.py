@@ -6,7 +6,8 @@ and axis it is banded: :class:`solvers.banded.BandedSmoother` solves its optimal
 dynamics kept as constraints, no ``Q^-1`` formed) by a banded LU with one step of iterative
 refinement, to the rounding level, for the whole batch of platforms at once (x and y share the
 factorisation). It also returns the process noise from the multipliers, so the prior term of the EM
-objective keeps its precision when ``q dt^5`` is tiny against the positions.
+objective keeps its precision when ``q dt^5`` is tiny against the positions. Where numba is
+installed the LU runs as compiled loops (:func:`pmht_opt.kernels.lu_compiled`), else through LAPACK.
 """
 
 from __future__ import annotations
