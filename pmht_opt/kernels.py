@@ -20,9 +20,10 @@ and the two transcendental steps, ``exp`` of the log weights and ``log`` of the 
 to numpy, whose SIMD ``exp`` need not round like the C library's. ``tests/test_kernels.py`` checks
 the identity on random and adversarial blocks.
 
-numba is imported on first use only (``import pmht_opt`` stays free of it), about 0.1-0.2 s once per
-process; the compiled code is cached on disk, so the compilation is paid once per installation. The
-loops release the interpreter lock, so the blocks run on concurrent threads as the numpy passes do.
+numba is imported on first use only (``import pmht_opt`` stays free of it), about 0.3 s and 100 MB
+with the loops loaded, once per process; the compiled code is cached on disk, so the compilation is
+paid once per installation. The loops release the interpreter lock, so the blocks run on concurrent
+threads as the numpy passes do.
 """
 
 from __future__ import annotations
