@@ -12,9 +12,12 @@ right-hand sides fixed when a loop is compiled (so that the inner loops unroll):
 (the first entry of largest magnitude), the same reciprocal scaling and the same updates in the same
 order. Each update ``a - l u`` may be formed as one fused multiply-add (numba's ``contract`` flag),
 as optimised BLAS kernels form it on processors that have the instruction; with SciPy's OpenBLAS on
-such a processor the factors and solutions were measured equal to LAPACK's to the last bit
-(docs/decisions.md section 1.12), and elsewhere they differ by rounding only. On the paper's
-scenario they take about a third of LAPACK's time.
+such a processor the factors, pivots and solutions of finite bands were measured equal to LAPACK's
+to the last bit, up to the sign of a zero (docs/decisions.md section 1.12), and elsewhere they
+differ by rounding only. Non-finite entries are not LAPACK's business either way: a NaN is never
+chosen as a pivot here (it can be by OpenBLAS's pivot search), and an update by an exact zero is
+skipped, as reference LAPACK skips it. On the paper's scenario they take about a third of LAPACK's
+time.
 
 numba is imported on first use; the compiled loops are cached on disk, one pair per ``(k, K)``.
 They release the interpreter lock, so :class:`solvers.band_lu.BandLU` runs its parts on concurrent
@@ -140,6 +143,11 @@ def _compile(k: int, K: int) -> tuple[Callable[..., int], Callable[..., None]] |
         return None
     jit = numba.njit(cache=True, nogil=True, boundscheck=False, fastmath={"contract"})
     factor, solve = band_loops(k, K)
+    # numba names a function's cache files after its qualified name and saves entries into them
+    # without a lock between processes: two processes compiling two pairs of one name at once could
+    # index one pair's code under the other's key. A name per pair gives each pair its own files.
+    for loop, name in ((factor, f"band_factor_k{k}"), (solve, f"band_solve_k{k}_K{K}")):
+        loop.__name__ = loop.__qualname__ = name
     return jit(factor), jit(solve)
 
 

@@ -147,7 +147,7 @@ class BandLU:
         )
         if not covered:  # a wrong range would let LAPACK write outside the arrays
             raise ValueError(f"parts {list(parts)} do not cover rows 0..{self.N} in order.")
-        self.parts = list(parts)
+        self.parts = [(int(lo), int(hi)) for lo, hi in parts]  # ctypes takes Python integers only
         self.threads = max(1, int(threads))
         self.compiled = bool(compiled)
         self.ipiv = np.empty(self.N, dtype=np.intc)

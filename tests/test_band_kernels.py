@@ -50,7 +50,8 @@ def test_band_lu_parts_equal_lapack_whole(compiled: bool) -> None:
     _lu, _piv, x_ref, info = scipy.linalg.lapack.dgbsv(k, k, band.copy(order="F"), rhs.copy(order="F"))
     assert info == 0
     np.testing.assert_allclose(A @ x_ref, rhs, atol=1e-9)
-    for chosen in ([(0, N)], parts):
+    numpy_ints = [(np.int64(lo), np.int64(hi)) for lo, hi in parts]  # as np.cumsum gives them
+    for chosen in ([(0, N)], parts, numpy_ints):
         for threads in (1, 2):
             b = rhs.copy(order="F")
             fact = BandLU(band.copy(order="F"), k, b, chosen, threads, compiled=compiled)
@@ -81,6 +82,35 @@ def test_compiled_loops_take_lapacks_pivots(k: int, K: int) -> None:
     np.testing.assert_allclose(f1, f0, rtol=0, atol=1e-12 * np.abs(f0).max())
     np.testing.assert_allclose(b1, b0, rtol=0, atol=1e-12 * np.abs(b0).max())
     np.testing.assert_allclose(A @ b1, rhs, atol=1e-9 * np.abs(A @ b1).max())
+
+
+@needs_numba
+def test_ties_pick_lapacks_pivot() -> None:
+    """Where two candidates have the same magnitude LAPACK takes the first: so do the loops, on a band
+    of small integers (ties everywhere) and on the smoother's own KKT band (ties between its unit
+    entries), and they solve alike."""
+    rng = np.random.default_rng(21)
+    k = 3
+    _A, band, parts = random_band(rng, k, (300, 200))
+    band[:] = rng.integers(-2, 3, size=band.shape)
+    band[2 * k] += np.where(band[2 * k] == 0, 1.0, 0.0)  # no zero on the diagonal
+    band[:k] = 0.0
+    F, Q = ca_model(0.1, 1e-4)
+    sm = BandedSmoother(F, Q, E1, 200, 2)
+    kkt = np.ascontiguousarray(sm._band_T).T.copy(order="F")
+    w = rng.random((2, 200))
+    w[:, 120:] = 0.0
+    for index, value in zip(sm._pen_index, sm._pen_value, strict=True):
+        kkt.T.reshape(-1)[index] += w / 1e-2 * value
+    for matrix, parts_of in ((band, parts), (kkt, sm._parts())):
+        rhs = np.asfortranarray(rng.normal(size=(matrix.shape[1], 2)))
+        got = []
+        for compiled in (False, True):
+            factors, b = matrix.copy(order="F"), rhs.copy(order="F")
+            fact = BandLU(factors, k, b, parts_of, 1, compiled=compiled)
+            got.append((fact.ipiv, b))
+        np.testing.assert_array_equal(got[1][0], got[0][0])
+        np.testing.assert_allclose(got[1][1], got[0][1], rtol=0, atol=1e-12 * np.abs(got[0][1]).max())
 
 
 def test_loops_uncompiled_are_lapacks_algorithm() -> None:

@@ -73,9 +73,13 @@ def trial(
 
 
 def warm_up(solver: str, gate: str, iterations: int, plain: bool = False) -> None:
-    """One plan of a tiny scenario (12 locales, 12 steps, 2 platforms) in this configuration: the
-    imports and compiled loops a first plan loads, loaded before anything is measured."""
+    """The imports, pools and compiled loops a first plan loads, loaded before anything is measured:
+    one plan of a tiny scenario (12 locales, 12 steps, 2 platforms) in this configuration and, unless
+    the E-step is dense, three iterations of plain EM on one whose last E-step is gated (60 locales,
+    40 steps, 3 platforms), which loads the gated E-step's compiled loops."""
     plan_pmht(scaling_scenario(12, 12, 2, 0), config(solver, gate, iterations, plain))
+    if gate != "off":
+        plan_pmht(scaling_scenario(60, 40, 3, 0), config(solver, gate, 3, plain=True))
 
 
 def time_plan(sc: Scenario, solver: str, gate: str, iterations: int, plain: bool = False) -> dict[str, Any]:
