@@ -59,6 +59,19 @@ def test_every_backend_equals_the_exact_smoother_on_recorded_weights(name: str, 
     assert err <= TOL, f"{backend} on {name}: {err:.2e}"
 
 
+@pytest.mark.parametrize("backend", ["clarabel", "osqp", "cvxpy"])
+def test_an_idle_platform_takes_the_exact_coasting_path(backend: str) -> None:
+    """A platform without weight is not solved: its answer is the exact smoother's (computed beside
+    the other platforms' solves), the others' agree with it."""
+    sc, W, WZ, r = _fixture("anneal-first-A")
+    W, WZ = W.copy(), WZ.copy()
+    W[:, 1], WZ[:, 1] = 0.0, 0.0
+    exact = solve_mstep(sc, W, WZ, r, solver="banded")
+    states = solve_mstep(sc, W, WZ, r, solver=backend)
+    np.testing.assert_array_equal(states[1], exact[1])
+    assert float(np.max(np.abs(states[:, :, [0, 3]] - exact[:, :, [0, 3]]))) <= TOL
+
+
 @pytest.mark.parametrize("name", ["anneal-first-A", "paper30-B", "gated-C"])
 def test_cvxpy_with_its_default_solver_equals_the_exact_smoother(name: str) -> None:
     sc, W, WZ, r = _fixture(name)

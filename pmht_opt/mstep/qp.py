@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, ClassVar
 
 import numpy as np
@@ -29,6 +29,8 @@ from pmht_opt.mstep.tuning import (
 from pmht_opt.scenario import Scenario
 from pmht_opt.validation import flag
 from pmht_opt.verify import resolution
+from solvers.banded import BandedSmootherResult
+from solvers.threads import LazyPool, wait_all
 
 #: Largest violation of a platform's rows by the exact unconstrained optimum for it to be taken as the
 #: constrained optimum without a solve (rounding of positions of order 10 is far below it); relative
@@ -37,6 +39,8 @@ SCREEN_TOL = 1e-10
 #: The least back-off of hard cones, in units of the positions' resolution
 #: (:func:`~pmht_opt.verify.resolution`).
 MARGIN_RESOLUTIONS = 64.0
+#: The thread that computes the exact smoother beside unconstrained solves (:meth:`QPMStep._solve`).
+_EXACT = LazyPool(1, "pmht-exact")
 
 
 def check_solution(sol: solvers.QPSolution, accept_inaccurate: bool, platform: int | None = None) -> None:
@@ -188,11 +192,37 @@ class QPMStep(MStep):
 
     def _solve(self, data: MStepData) -> MStepOutput:
         rows = self.rows.rows(data.ctx, data.active, data.strengths)
-        exact = self.reference().smooth(data)
-        exact_states, exact_noise = exact.side_by_side()
-        active = self._screen(data, rows, exact_states)
-
         constrained = any(r.items for r in rows.values())
+        exact: BandedSmootherResult | Future[BandedSmootherResult]
+        if constrained or self.exact_unconstrained:  # the screening reads the exact answer
+            exact = self.reference().smooth(data)
+            active = self._screen(data, rows, exact.side_by_side()[0])
+        else:
+            # Nothing to screen but the idle platforms: the exact smoother, which checks the answers
+            # and answers for idle platforms, runs on its own thread beside the solves (cvxpy's run on
+            # one thread; OSQP's and Clarabel's leave a core idle while the last platform finishes).
+            exact = _EXACT.get().submit(self.reference().smooth, data)
+            active = [int(m) for m in np.flatnonzero(np.any(data.W > 0, axis=0))]
+        try:
+            return self._solve_active(data, rows, active, constrained, exact)
+        finally:
+            if isinstance(exact, Future):
+                wait_all([exact])  # no thread of this M-step runs on after it returns
+
+    def _solve_active(
+        self,
+        data: MStepData,
+        rows: dict[int, PlatformRows],
+        active: list[int],
+        constrained: bool,
+        exact: BandedSmootherResult | Future[BandedSmootherResult],
+    ) -> MStepOutput:
+        """Solve the platforms ``active`` and join their answers with the exact smoother's for the
+        others (``exact`` given, or still being computed: then the solves cannot start from it)."""
+        exact_states: np.ndarray | None = None
+        exact_noise: np.ndarray | None = None
+        if not isinstance(exact, Future):
+            exact_states, exact_noise = exact.side_by_side()
         budget = solvers.WorkBudget(self.mstep_work) if constrained and self.mstep_work else None
         verdicts: dict[int, PmhtOptError] = {}
 
@@ -206,7 +236,9 @@ class QPMStep(MStep):
                 platform_rows,
                 probe=self._probe(m, data, platform_rows, verdicts),
                 budget=budget,
-                exact=(exact_states[m, 1:], exact_noise[m]),
+                exact=None
+                if exact_states is None or exact_noise is None
+                else (exact_states[m, 1:], exact_noise[m]),
             )
             if not sol.usable(self.accept_inaccurate) and platform_rows is not None and platform_rows.items:
                 raise verdicts.get(m) or self._diagnose(m, data, platform_rows, sol)
@@ -220,6 +252,10 @@ class QPMStep(MStep):
             answers = list(self._pool.map(one, active))
         else:
             answers = [one(m) for m in active]
+        if isinstance(exact, Future):
+            exact = exact.result()
+            exact_states, exact_noise = exact.side_by_side()
+        assert exact_states is not None and exact_noise is not None
         body = exact_states[:, 1:].copy()
         noise = exact_noise.copy()
         for m, (_, states, u) in zip(active, answers, strict=True):
