@@ -67,9 +67,9 @@ def lu_compiled() -> bool:
     numba installed and the switch not ``0``.
 
     At every size: on the smoother's band they are about three times as fast as LAPACK's routines
-    (which make four BLAS calls per column), about 15% of a default plan of the paper's scenario A,
-    so the one import of numba per process is repaid within a few plans. With SciPy's OpenBLAS on a
-    processor with fused multiply-add their numbers equal LAPACK's to the last bit
+    (which make four BLAS calls per column), which takes about 15% off a default plan of the paper's
+    scenario A, so the one import of numba per process is repaid within a few plans. With SciPy's
+    OpenBLAS on a processor with fused multiply-add their numbers equal LAPACK's to the last bit
     (docs/decisions.md section 1.12).
     """
     return _switch() != "0" and band_kernels.available()
