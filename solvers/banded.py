@@ -230,7 +230,7 @@ class BandedSmoother:
         if int(batch) != batch or batch < 1:
             raise ProblemError(f"batch must be a positive integer, got {batch!r}.")
         self.n, self.T, self.B = n, int(horizon), int(batch)
-        self.compiled = bool(compiled)
+        self.compiled = _compiled_flag(compiled)
         self.F, self.Q, self.h, self.L = F.copy(), Q.copy(), h.copy(), L  # the caller's may change
         # Dimensionless unknowns: x = d * xs, lam = lam_s / d (module docstring).
         d = np.sqrt(np.diag(Q))
@@ -568,6 +568,13 @@ class BandedFactor:
         return np.moveaxis(z[..., n:], 0, -1), np.moveaxis(z[..., :n] @ s.L, 0, -1)
 
 
+def _compiled_flag(compiled: object) -> bool:
+    """``compiled`` as a bool; :class:`ProblemError` for anything but ``True`` or ``False``."""
+    if not isinstance(compiled, (bool, np.bool_)):
+        raise ProblemError(f"compiled must be True or False, got {compiled!r}.")
+    return bool(compiled)
+
+
 @functools.lru_cache(maxsize=64)
 def _groups(B: int, T: int, n: int, min_steps: int, max_parts: int) -> tuple[tuple[int, int], ...]:
     """:meth:`BandedSmoother._parts` for a batch of ``B`` systems of ``T`` steps of ``n`` states (computed
@@ -643,7 +650,17 @@ def banded_smoother(
     if w.ndim != 2:
         raise ProblemError(f"weight must have shape (B, T), got {w.shape}.")
     B, T = w.shape
-    key = (Fa.shape, Fa.tobytes(), Qa.shape, Qa.tobytes(), ha.shape, ha.tobytes(), T, B, bool(compiled))
+    key = (
+        Fa.shape,
+        Fa.tobytes(),
+        Qa.shape,
+        Qa.tobytes(),
+        ha.shape,
+        ha.tobytes(),
+        T,
+        B,
+        _compiled_flag(compiled),
+    )
     with _CACHE_LOCK:
         smoother = _CACHE.get(key)
         if smoother is not None:

@@ -174,24 +174,14 @@ def baseline(checkout: Path, repeats: int, seed: int, backends: list[str]) -> di
     return {"commit": commit, "results": data.get("results", {})}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--fast-plans", type=int, default=5, help="plans per round of auto and banded")
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--backends", nargs="*", default=list(BACKENDS))
-    parser.add_argument("--baseline", type=Path, default=None, help="a checkout of the earlier code")
-    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "bench_core.json")
-    args = parser.parse_args()
-
-    scenario = po.paper_scenario("A", seed=args.seed)
+def run_rounds(scenario: po.Scenario, args: argparse.Namespace, common: list[str]) -> list[dict[str, Any]]:
+    """``--repeats`` rounds, each with one plan per backend (``--fast-plans`` of :data:`FAST`), the
+    independent reference on the recorded M-steps and (with ``--baseline``) the earlier code's plans
+    of ``common``: a change of this shared machine's speed hits them all, and the ratios are read
+    within each round."""
     steps = _recorded_msteps(scenario)
-    common = [b for b in args.backends if b in ("kalman", "clarabel", "osqp", "cvxpy")]
-    # Everything in rounds: per round one plan per backend, the independent reference and (with
-    # --baseline) the earlier code's plans, so that a change of this shared machine's speed hits all of
-    # them and the ratios are read within each round.
     rounds: list[dict[str, Any]] = []
-    for _ in range(max(args.repeats, 1)):
+    for _ in range(args.repeats):
         one: dict[str, Any] = {
             "new": {b: time_backend(scenario, b, args.fast_plans if b in FAST else 1) for b in args.backends}
         }
@@ -199,43 +189,43 @@ def main() -> None:
         if args.baseline is not None:
             one["old"] = baseline(args.baseline, 1, args.seed, common)
         rounds.append(one)
-    rows = {b: merge_rounds([r["new"][b] for r in rounds]) for b in args.backends}
-    default_b = "auto" if "auto" in rows else next(iter(rows))
-    default = rows[default_b]
+    return rounds
+
+
+def reference_summary(rounds: list[dict[str, Any]], default_b: str) -> dict[str, Any]:
+    """The reference plan (its M-steps plus the default plan's E-step) against the default plan: the
+    medians, and the ratio within each round."""
     ref_m = float(np.median([r["reference_mstep_s"] for r in rounds]))
-    # The reference plan of a round: its M-steps plus the default plan's E-step of the same round.
+    estep = float(np.median([r["new"][default_b]["median_estep_s"] for r in rounds]))
     speedups = [
         (r["reference_mstep_s"] + r["new"][default_b]["median_estep_s"])
         / r["new"][default_b]["median_wall_s"]
         for r in rounds
     ]
-    reference = {
+    return {
         "median_mstep_s": ref_m,
-        "plan_s": ref_m + default["median_estep_s"],
+        "plan_s": ref_m + estep,
         "speedup_per_round": [round(x, 3) for x in speedups],
         "median_speedup": float(np.median(speedups)),
     }
-    old = None
-    if args.baseline is not None:
-        old = {
-            "commit": rounds[0]["old"]["commit"],
-            "results": {
-                b: {
-                    "median_wall_s": float(
-                        np.median([r["old"]["results"][b]["median_wall_s"] for r in rounds])
-                    )
-                }
-                for b in common
-            },
-        }
-        for b in common:
-            ratios = [r["new"][b]["median_wall_s"] / r["old"]["results"][b]["median_wall_s"] for r in rounds]
-            rows[b]["ratio_per_round"] = [round(x, 3) for x in ratios]
-            rows[b]["median_ratio_per_round"] = float(np.median(ratios))
+
+
+def add_baseline(rows: dict[str, dict[str, Any]], rounds: list[dict[str, Any]], common: list[str]) -> None:
+    """The earlier code's medians in ``rows`` of ``common``, with the ratio of the medians and the
+    rounds' own ratios new / old."""
+    for b in common:
+        old = [r["old"]["results"][b]["median_wall_s"] for r in rounds]
+        ratios = [r["new"][b]["median_wall_s"] / o for r, o in zip(rounds, old, strict=True)]
+        row = rows[b]
+        row["baseline_median_wall_s"] = float(np.median(old))
+        row["ratio_to_baseline"] = row["median_wall_s"] / row["baseline_median_wall_s"]
+        row["ratio_per_round"] = [round(x, 3) for x in ratios]
+        row["median_ratio_per_round"] = float(np.median(ratios))
+
+
+def report(rows: dict[str, dict[str, Any]], reference: dict[str, Any], default: dict[str, Any]) -> None:
+    """One line per backend, one for the reference and the target."""
     for b, row in rows.items():
-        if old is not None and b in old["results"]:
-            row["baseline_median_wall_s"] = old["results"][b]["median_wall_s"]
-            row["ratio_to_baseline"] = row["median_wall_s"] / row["baseline_median_wall_s"]
         print(
             f"{b:<9} median {row['median_wall_s']:.3f} s (E-step {row['median_estep_s']:.3f} s, "
             f"{row['estep_per_iteration_after_annealing_ms']:.2f} ms per iteration after annealing; "
@@ -248,11 +238,37 @@ def main() -> None:
             )
         )
     print(
-        f"reference RTS plan {reference['plan_s']:.3f} s (M-steps {ref_m:.3f} s): default plan "
-        f"{reference['plan_s'] / default['median_wall_s']:.1f}x faster (median of the rounds' "
-        f"ratios {reference['median_speedup']:.1f}x); target {TARGET_S} s: "
+        f"reference RTS plan {reference['plan_s']:.3f} s (M-steps {reference['median_mstep_s']:.3f} s): "
+        f"default plan {reference['plan_s'] / default['median_wall_s']:.1f}x faster (median of the "
+        f"rounds' ratios {reference['median_speedup']:.1f}x); target {TARGET_S} s: "
         f"{'met' if default['median_wall_s'] <= TARGET_S else 'MISSED'}"
     )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--fast-plans", type=int, default=5, help="plans per round of auto and banded")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--backends", nargs="*", default=list(BACKENDS))
+    parser.add_argument("--baseline", type=Path, default=None, help="a checkout of the earlier code")
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "bench_core.json")
+    args = parser.parse_args()
+    if args.repeats < 1 or args.fast_plans < 1:
+        parser.error("--repeats and --fast-plans must be at least 1")
+    unknown = sorted(set(args.backends) - set(BACKENDS))
+    if not args.backends or unknown:
+        parser.error(f"--backends: choose among {', '.join(BACKENDS)} (got {unknown or 'none'})")
+
+    scenario = po.paper_scenario("A", seed=args.seed)
+    common = [b for b in args.backends if b in ("kalman", "clarabel", "osqp", "cvxpy")]
+    rounds = run_rounds(scenario, args, common)
+    rows = {b: merge_rounds([r["new"][b] for r in rounds]) for b in args.backends}
+    default_b = "auto" if "auto" in rows else args.backends[0]
+    reference = reference_summary(rounds, default_b)
+    if args.baseline is not None:
+        add_baseline(rows, rounds, common)
+    report(rows, reference, rows[default_b])
     payload = {
         "benchmark": f"scenario A, seed {args.seed}: N=100, M=4, T=500, 100 EM iterations, default settings",
         "repeats": args.repeats,
@@ -260,7 +276,7 @@ def main() -> None:
         "target_default_plan_s": TARGET_S,
         "results": rows,
         "independent_reference": reference,
-        "baseline": None if old is None else {"commit": old["commit"]},
+        "baseline": None if args.baseline is None else {"commit": rounds[0]["old"]["commit"]},
     }
     print(f"wrote: {write_json(args.out, payload)}")
 

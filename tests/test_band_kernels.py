@@ -12,7 +12,8 @@ import pmht_opt as po
 from pmht_opt import kernels
 from solvers import band_kernels
 from solvers.band_lu import BandLU
-from solvers.banded import BandedSmoother
+from solvers.banded import BandedSmoother, banded_smoother
+from solvers.exceptions import ProblemError
 from studies.smoother_reference import E1, ca_model
 
 needs_numba = pytest.mark.skipif(not band_kernels.available(), reason="numba is not installed")
@@ -196,3 +197,15 @@ def test_the_switch_decides_the_m_steps_lu(monkeypatch: pytest.MonkeyPatch) -> N
     assert kernels.lu_compiled() == band_kernels.available()
     compiled = po.plan_pmht(scenario, config).states
     np.testing.assert_allclose(compiled, lapack, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("bad", ["yes", 1, None, 0.0])
+def test_compiled_must_be_a_bool(bad: object) -> None:
+    F, Q = ca_model(0.1, 1e-4)
+    with pytest.raises(ProblemError, match="compiled"):
+        BandedSmoother(F, Q, E1, 10, 1, compiled=bad)  # type: ignore[arg-type]
+    banded_smoother(F, Q, E1, 1.0, np.zeros((1, 3, 1)), np.zeros((1, 10, 1)), np.ones((1, 10)), compiled=True)
+    with pytest.raises(ProblemError, match="compiled"):  # not taken for True by the cache either
+        banded_smoother(
+            F, Q, E1, 1.0, np.zeros((1, 3, 1)), np.zeros((1, 10, 1)), np.ones((1, 10)), compiled=bad
+        )  # type: ignore[arg-type]

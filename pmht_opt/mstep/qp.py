@@ -153,7 +153,9 @@ class QPMStep(MStep):
             condensed_settings=self.condensed_options if self.condense else None,
         )
 
-    def _screen(self, data: MStepData, rows: dict[int, PlatformRows], exact_states: np.ndarray) -> list[int]:
+    def _screen(
+        self, data: MStepData, rows: dict[int, PlatformRows], exact_states: np.ndarray | None
+    ) -> list[int]:
         """The platforms that need a solve.
 
         Where the exact unconstrained optimum already meets a platform's rows it is that platform's
@@ -166,6 +168,7 @@ class QPMStep(MStep):
         for m in range(self.M):
             items = rows[m].items if m in rows else []
             if items:
+                assert exact_states is not None, "platforms with rows are screened on the exact answer"
                 z = exact_states[m, 1:].reshape(-1)
                 exact_ok[m] = all(np.all(i.block.residual(z) <= _screen_tol(i.block)) for i in items)
             else:
@@ -194,17 +197,19 @@ class QPMStep(MStep):
         rows = self.rows.rows(data.ctx, data.active, data.strengths)
         constrained = any(r.items for r in rows.values())
         exact: BandedSmootherResult | Future[BandedSmootherResult]
+        laid_out: tuple[np.ndarray, np.ndarray] | None = None
         if constrained or self.exact_unconstrained:  # the screening reads the exact answer
             exact = self.reference().smooth(data)
-            active = self._screen(data, rows, exact.side_by_side()[0])
+            laid_out = exact.side_by_side()
+            active = self._screen(data, rows, laid_out[0])
         else:
             # Nothing to screen but the idle platforms: the exact smoother, which checks the answers
             # and answers for idle platforms, runs on its own thread beside the solves (cvxpy's run on
             # one thread; OSQP's and Clarabel's leave a core idle while the last platform finishes).
             exact = _EXACT.get().submit(self.reference().smooth, data)
-            active = [int(m) for m in np.flatnonzero(np.any(data.W > 0, axis=0))]
+            active = self._screen(data, rows, None)
         try:
-            return self._solve_active(data, rows, active, constrained, exact)
+            return self._solve_active(data, rows, active, constrained, exact, laid_out)
         finally:
             if isinstance(exact, Future):
                 wait_all([exact])  # no thread of this M-step runs on after it returns
@@ -216,13 +221,12 @@ class QPMStep(MStep):
         active: list[int],
         constrained: bool,
         exact: BandedSmootherResult | Future[BandedSmootherResult],
+        laid_out: tuple[np.ndarray, np.ndarray] | None,
     ) -> MStepOutput:
         """Solve the platforms ``active`` and join their answers with the exact smoother's for the
-        others (``exact`` given, or still being computed: then the solves cannot start from it)."""
-        exact_states: np.ndarray | None = None
-        exact_noise: np.ndarray | None = None
-        if not isinstance(exact, Future):
-            exact_states, exact_noise = exact.side_by_side()
+        others: ``exact`` with its states and noise ``laid_out`` (``side_by_side``), or still being
+        computed (``laid_out`` then ``None``: the solves cannot start from it)."""
+        exact_states, exact_noise = laid_out if laid_out is not None else (None, None)
         budget = solvers.WorkBudget(self.mstep_work) if constrained and self.mstep_work else None
         verdicts: dict[int, PmhtOptError] = {}
 
