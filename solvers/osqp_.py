@@ -100,6 +100,17 @@ class OSQPSession(QPSession):
         prob = self.problem
         return int(prob.P.nnz + prob.A.nnz + prob.n + prob.m)
 
+    @property
+    def keeps_scaling(self) -> bool:
+        """``True`` while ``rho`` is adaptive (OSQP's default).
+
+        OSQP applies its setup-time equilibration to updated numbers, and its adaptive step ``rho``
+        rebalances the primal and dual residuals for them, which a new setup's equilibration would
+        otherwise do; a new setup would also drop the warm start of the last iterate. With a fixed
+        ``rho`` nothing adapts, and the caller should set it up afresh.
+        """
+        return bool({**DEFAULTS, **self.settings}.get("adaptive_rho", True))
+
     def _iteration_room(self) -> int | None:
         """Iterations left under ``work_limit`` and the shared :attr:`budget` (``None``: no limit)."""
         rooms = [b.room(self.size) for b in (self._own, self.budget) if b is not None]

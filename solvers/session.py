@@ -85,6 +85,18 @@ class QPSession(abc.ABC):
     #: Whether the backend accepts second-order cones.
     supports_soc: ClassVar[bool] = False
 
+    @property
+    def keeps_scaling(self) -> bool:
+        """Whether the scaling computed at setup still serves after updates that move the numbers by
+        orders of magnitude.
+
+        Backends equilibrate the problem at setup and apply that scaling to every update. An
+        interior-point method has nothing that adapts to the new numbers, and a scaling far from them
+        can leave its solves short of their tolerances; a caller whose numbers move far should then set
+        the problem up afresh. The default is ``False``.
+        """
+        return False
+
     def __init__(self, problem: QPProblem, **settings: Any) -> None:
         self.problem = problem
         self.settings = dict(settings)

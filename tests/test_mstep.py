@@ -188,6 +188,34 @@ def test_a_plan_records_fallback_solves(scenario_a: po.Scenario) -> None:
     assert res.metrics()["solver_fallbacks"] == int(res.history.fallbacks.sum())
 
 
+def test_annealing_sets_up_a_session_afresh_only_where_its_scaling_does_not_keep(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Annealing moves r a hundredfold: OSQP with its adaptive rho keeps each platform's first session
+    (and its warm start); with a fixed rho the session is set up afresh as r moves, and the plan is the
+    same up to the solver's tolerance."""
+    import osqp
+
+    setups = [0]
+    real_setup = osqp.OSQP.setup
+
+    def counted_setup(self: osqp.OSQP, *args: object, **kwargs: object) -> object:
+        setups[0] += 1
+        return real_setup(self, *args, **kwargs)
+
+    monkeypatch.setattr(osqp.OSQP, "setup", counted_setup)
+    sc = po.paper_scenario("A", seed=0, horizon=60)
+    plans, counts = [], []
+    for settings in ({}, {"adaptive_rho": False}):
+        setups[0] = 0
+        cfg = po.PMHTConfig(solver="osqp", max_iter=25, anneal=po.Anneal(1.0, 15), solver_settings=settings)
+        plans.append(po.plan_pmht(sc, cfg).positions)
+        counts.append(setups[0])
+    assert counts[0] == sc.n_platforms
+    assert counts[1] > 2 * sc.n_platforms
+    np.testing.assert_allclose(plans[0], plans[1], atol=1e-6)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "field"),
     [

@@ -296,6 +296,14 @@ def test_osqp_resume_continues_from_its_iterate() -> None:
     assert solvers.open_session(prob, "clarabel").resume(max_iter=5) is None
 
 
+def test_only_osqp_with_an_adaptive_rho_keeps_its_setup_scaling() -> None:
+    prob, _ = eq_ineq_problem()
+    assert solvers.open_session(prob, "osqp").keeps_scaling
+    assert not solvers.open_session(prob, "osqp", adaptive_rho=False).keeps_scaling
+    assert not solvers.open_session(prob, "clarabel").keeps_scaling
+    assert not solvers.open_session(prob, "cvxpy").keeps_scaling
+
+
 def test_osqp_work_limit_bounds_every_solve_of_the_same_numbers() -> None:
     prob = box_smoothing_problem()
     session = solvers.open_session(prob, "osqp", polishing=False, **EXACT_ITERATIONS, work_limit=1.0)

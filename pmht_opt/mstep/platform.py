@@ -25,7 +25,8 @@ from pmht_opt.mstep.condensed import CondensedQP
 from pmht_opt.mstep.formulation import QPLayout, dynamics_rows, in_increments
 from pmht_opt.mstep.rows import ExtraRows, PlatformRows, assemble
 
-#: A backend session keeps its setup-time scaling while ``r`` stays within this factor of its setup ``r``.
+#: A backend session keeps its setup-time scaling while ``r`` stays within this factor of its setup ``r``
+#: (unless it adapts to new numbers itself, :attr:`solvers.QPSession.keeps_scaling`).
 RESCALE = 2.0
 #: Weights at or below this fraction of a platform's largest do not extend the horizon of its QP.
 NEGLIGIBLE_WEIGHT = 1e-12
@@ -294,9 +295,11 @@ class HorizonQP:
         if it does not succeed, the whole QP below is solved.
 
         A session's scaling (both backends equilibrate at setup) is kept while ``r`` stays within a
-        factor :data:`RESCALE` of the ``r`` it was set up with; past that, and whenever the rows'
-        structure changes, the session is set up afresh. Under annealing ``r`` shrinks a hundredfold,
-        and a stale scaling leaves interior-point solves "almost solved".
+        factor :data:`RESCALE` of the ``r`` it was set up with, or for good if the session adapts to
+        new numbers itself (:attr:`solvers.QPSession.keeps_scaling`: OSQP with its adaptive ``rho``);
+        past that, and whenever the rows' structure changes, the session is set up afresh. Under
+        annealing ``r`` shrinks a hundredfold, and a stale scaling leaves interior-point solves
+        "almost solved".
         """
         key = rows.key if rows is not None else ()
         if key != self._rows_key:
@@ -327,7 +330,12 @@ class HorizonQP:
     ) -> solvers.QPSolution:
         """Solve the whole QP of the current rows through the backend session (:meth:`solve`)."""
         key = self._rows_key
-        stale = self._setup_r is not None and not (1.0 / RESCALE <= r / self._setup_r <= RESCALE)
+        stale = (
+            self.session is not None
+            and self._setup_r is not None
+            and not self.session.keeps_scaling
+            and not (1.0 / RESCALE <= r / self._setup_r <= RESCALE)
+        )
         if self.session is not None and key == self._session_key and not stale:  # only the weights moved
             q = self._cost(W, WZ, r)
             self.session.update(P_data=self.diag[self.stored], q=q)
