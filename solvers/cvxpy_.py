@@ -188,7 +188,18 @@ class CvxpySession(QPSession):
             # Cones (ours, or any the extra terms bring) compile far faster without parameters.
             opts.setdefault("ignore_dpp", True)
         self._options = opts
+        #: Whether the next solve hands its data to a new inner solver (:meth:`rescale`).
+        self._fresh_inner = False
         self._build()
+
+    def rescale(self) -> None:
+        """Hand the next solve's data to a new inner solver, which scales it afresh.
+
+        cvxpy keeps the inner solver of the last solve and updates it with the new data (its warm
+        start), so that solver keeps the scaling of its setup. The compiled problem does not depend on
+        the numbers, and compiling it again would only cost time.
+        """
+        self._fresh_inner = True
 
     def _build(self) -> None:
         prob: QPProblem = self.problem
@@ -226,10 +237,12 @@ class CvxpySession(QPSession):
             self._b.value = update.b
 
     def _solve(self) -> QPSolution:
+        options = {**self._options, "warm_start": False} if self._fresh_inner else self._options
+        self._fresh_inner = False
         return solve_to_solution(
             self._problem,
             lambda: self._x.value,
             f"{self.name}/{self._solver_name}",
             self._solver_name,
-            self._options,
+            options,
         )

@@ -97,6 +97,14 @@ class QPSession(abc.ABC):
         """
         return False
 
+    def rescale(self) -> None:
+        """Set the backend up afresh on the current numbers, so that its scaling fits them.
+
+        For a caller whose numbers moved far from those of the setup (:attr:`keeps_scaling`). The
+        default hands :attr:`problem` to a new backend object, as at construction.
+        """
+        self._setup()
+
     def __init__(self, problem: QPProblem, **settings: Any) -> None:
         self.problem = problem
         self.settings = dict(settings)

@@ -304,6 +304,28 @@ def test_only_osqp_with_an_adaptive_rho_keeps_its_setup_scaling() -> None:
     assert not solvers.open_session(prob, "cvxpy").keeps_scaling
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_rescaled_session_solves_as_a_new_one_on_the_same_numbers(backend: str) -> None:
+    """After numbers that moved by orders of magnitude, :meth:`rescale` gives the answer of a session
+    set up on them, to the last bit; cvxpy keeps its compiled problem for it."""
+    # A fixed rho: OSQP's adaptive rho may depend on the setup's timing.
+    settings = {"adaptive_rho": False} if backend == "osqp" else {}
+    prob, _ = eq_ineq_problem()
+    session = solvers.open_session(prob, backend, **settings)
+    assert session.solve().ok
+    compiled = getattr(session, "_problem", None)
+    new_P, new_q = np.array([2e4, 1e4, 3e4]), np.array([-3e3, 2e3, 4e3])
+    session.update(P_data=new_P, q=new_q)
+    session.rescale()
+    rescaled = session.solve()
+    fresh_prob = QPProblem(P=sp.diags(new_P, format="csc"), q=new_q, A=prob.A, b=prob.b, cones=prob.cones)
+    fresh = solvers.open_session(fresh_prob, backend, **settings).solve()
+    assert rescaled.ok and fresh.ok
+    np.testing.assert_array_equal(rescaled.x, fresh.x)
+    if backend == "cvxpy":
+        assert session._problem is compiled
+
+
 def test_osqp_work_limit_bounds_every_solve_of_the_same_numbers() -> None:
     prob = box_smoothing_problem()
     session = solvers.open_session(prob, "osqp", polishing=False, **EXACT_ITERATIONS, work_limit=1.0)

@@ -11,7 +11,8 @@ platform's largest: below that its pull on the path is lost in rounding.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -151,6 +152,17 @@ class PlatformQP:
             return sol, head, noise
         tail = self.model.propagate(head[-1], T - n)[1:]
         return sol, np.concatenate([head, tail]), noise
+
+
+@contextlib.contextmanager
+def _setting_up() -> Iterator[None]:
+    """The library's errors for a backend that refuses its settings or the problem at setup."""
+    try:
+        yield
+    except solvers.SettingsError as err:
+        raise ConfigError(f"solver_settings: {err}") from err
+    except solvers.QPError as err:
+        raise SolverError(f"cannot set up the M-step QP: {err}") from err
 
 
 class HorizonQP:
@@ -345,27 +357,29 @@ class HorizonQP:
         pattern = None if self.extra is None else self.extra.pattern_key()
         q = self._cost(W, WZ, r)
         A, b, cones = self._constraints()
-        fresh = self.session is None or pattern != self._pattern or stale
+        fresh = self.session is None or pattern != self._pattern
         if self.session is None or fresh:
             self._pattern = pattern
             self._setup_r = r
             n_slack = 0 if self.extra is None else self.extra.n_slack
             self.problem = solvers.QPProblem(P=self._P(n_slack), q=q, A=A, b=b, cones=cones)
             self.session = self._open(self.problem, self.options)
-        elif self.extra is None:
-            self.session.update(P_data=self.diag[self.stored], q=q)
         else:
-            self.session.update(P_data=self.diag[self.stored], q=q, A_data=A.data, b=b)
+            if self.extra is None:
+                self.session.update(P_data=self.diag[self.stored], q=q)
+            else:
+                self.session.update(P_data=self.diag[self.stored], q=q, A_data=A.data, b=b)
+            if stale:
+                with _setting_up():
+                    self.session.rescale()
+                self._setup_r = r
+                fresh = True
         self.session.budget = budget
         return self._retry(self.session.solve(), q, fresh=fresh, probe=probe)
 
     def _open(self, problem: solvers.QPProblem, options: dict[str, Any]) -> solvers.QPSession:
-        try:
+        with _setting_up():
             return self.session_class(problem, **options)
-        except solvers.SettingsError as err:
-            raise ConfigError(f"solver_settings: {err}") from err
-        except solvers.QPError as err:
-            raise SolverError(f"cannot set up the M-step QP: {err}") from err
 
     def _retry(
         self,
