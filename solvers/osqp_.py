@@ -104,10 +104,10 @@ class OSQPSession(QPSession):
     def keeps_scaling(self) -> bool:
         """``True`` while ``rho`` is adaptive (OSQP's default).
 
-        OSQP applies its setup-time equilibration to updated numbers, and its adaptive step ``rho``
-        rebalances the primal and dual residuals for them, which a new setup's equilibration would
-        otherwise do; a new setup would also drop the warm start of the last iterate. With a fixed
-        ``rho`` nothing adapts, and the caller should set it up afresh.
+        OSQP equilibrates the problem again whenever ``P`` or ``A`` is updated, and its adaptive step
+        ``rho`` rebalances the primal and dual residuals for new numbers; a new setup would only drop
+        the warm start of the last iterate. A fixed ``rho`` stays tuned to the numbers it was chosen
+        for, and the caller should then set the problem up afresh.
         """
         return bool({**DEFAULTS, **self.settings}.get("adaptive_rho", True))
 
