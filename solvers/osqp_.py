@@ -101,13 +101,13 @@ class OSQPSession(QPSession):
         return int(prob.P.nnz + prob.A.nnz + prob.n + prob.m)
 
     @property
-    def keeps_scaling(self) -> bool:
+    def adapts_to_updates(self) -> bool:
         """``True`` while ``rho`` is adaptive (OSQP's default).
 
         OSQP equilibrates the problem again whenever ``P`` or ``A`` is updated, and its adaptive step
-        ``rho`` rebalances the primal and dual residuals for new numbers; a new setup would only drop
-        the warm start of the last iterate. A fixed ``rho`` stays tuned to the numbers it was chosen
-        for, and the caller should then set the problem up afresh.
+        ``rho`` rebalances the primal and dual residuals for the new numbers; a new setup would only
+        drop the warm start of the last iterate. A fixed ``rho`` stays tuned to the numbers it was
+        chosen for.
         """
         return bool({**DEFAULTS, **self.settings}.get("adaptive_rho", True))
 

@@ -85,26 +85,6 @@ class QPSession(abc.ABC):
     #: Whether the backend accepts second-order cones.
     supports_soc: ClassVar[bool] = False
 
-    @property
-    def keeps_scaling(self) -> bool:
-        """Whether the scaling computed at setup still serves after updates that move the numbers by
-        orders of magnitude.
-
-        Backends equilibrate the problem at setup and apply that scaling to every update. An
-        interior-point method has nothing that adapts to the new numbers, and a scaling far from them
-        can leave its solves short of their tolerances; a caller whose numbers move far should then set
-        the problem up afresh. The default is ``False``.
-        """
-        return False
-
-    def rescale(self) -> None:
-        """Set the backend up afresh on the current numbers, so that its scaling fits them.
-
-        For a caller whose numbers moved far from those of the setup (:attr:`keeps_scaling`). The
-        default hands :attr:`problem` to a new backend object, as at construction.
-        """
-        self._setup()
-
     def __init__(self, problem: QPProblem, **settings: Any) -> None:
         self.problem = problem
         self.settings = dict(settings)
@@ -160,6 +140,25 @@ class QPSession(abc.ABC):
         if b is not None:
             prob.b = b
         self._apply_update(Update(P_data, q, A_data, b))
+
+    @property
+    def adapts_to_updates(self) -> bool:
+        """Whether the session stays tuned to numbers that have moved far from those of its setup.
+
+        Backends equilibrate the problem at setup. Where updates keep that scaling (Clarabel applies it
+        to the new data) and nothing else adapts (an interior point), a scaling far from the numbers
+        can leave solves short of their tolerances, and a caller whose numbers move far should
+        :meth:`rescale`. The default is ``False``.
+        """
+        return False
+
+    def rescale(self) -> None:
+        """Set the backend up afresh on the current numbers, so that its scaling fits them.
+
+        For a caller whose numbers moved far from those of the setup (:attr:`adapts_to_updates`). The
+        default hands :attr:`problem` to a new backend object, as at construction.
+        """
+        self._setup()
 
     def resume(self, **settings: Any) -> QPSolution | None:
         """Solve again from where the last solve stopped, with ``settings`` changed; ``None`` if the

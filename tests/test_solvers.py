@@ -296,12 +296,12 @@ def test_osqp_resume_continues_from_its_iterate() -> None:
     assert solvers.open_session(prob, "clarabel").resume(max_iter=5) is None
 
 
-def test_only_osqp_with_an_adaptive_rho_keeps_its_setup_scaling() -> None:
+def test_only_osqp_with_an_adaptive_rho_adapts_to_updates() -> None:
     prob, _ = eq_ineq_problem()
-    assert solvers.open_session(prob, "osqp").keeps_scaling
-    assert not solvers.open_session(prob, "osqp", adaptive_rho=False).keeps_scaling
-    assert not solvers.open_session(prob, "clarabel").keeps_scaling
-    assert not solvers.open_session(prob, "cvxpy").keeps_scaling
+    assert solvers.open_session(prob, "osqp").adapts_to_updates
+    assert not solvers.open_session(prob, "osqp", adaptive_rho=False).adapts_to_updates
+    assert not solvers.open_session(prob, "clarabel").adapts_to_updates
+    assert not solvers.open_session(prob, "cvxpy").adapts_to_updates
 
 
 @pytest.mark.parametrize("backend", BACKENDS)

@@ -27,7 +27,7 @@ from pmht_opt.mstep.formulation import QPLayout, dynamics_rows, in_increments
 from pmht_opt.mstep.rows import ExtraRows, PlatformRows, assemble
 
 #: A backend session keeps its setup-time scaling while ``r`` stays within this factor of its setup ``r``
-#: (unless it adapts to new numbers itself, :attr:`solvers.QPSession.keeps_scaling`).
+#: (unless it adapts to new numbers itself, :attr:`solvers.QPSession.adapts_to_updates`).
 RESCALE = 2.0
 #: Weights at or below this fraction of a platform's largest do not extend the horizon of its QP.
 NEGLIGIBLE_WEIGHT = 1e-12
@@ -308,7 +308,7 @@ class HorizonQP:
 
         A session's scaling (both backends equilibrate at setup) is kept while ``r`` stays within a
         factor :data:`RESCALE` of the ``r`` it was set up with, or for good if the session adapts to
-        new numbers itself (:attr:`solvers.QPSession.keeps_scaling`: OSQP with its adaptive ``rho``);
+        new numbers itself (:attr:`solvers.QPSession.adapts_to_updates`: OSQP with its adaptive ``rho``);
         past that, and whenever the rows' structure changes, the session is set up afresh. Under
         annealing ``r`` shrinks a hundredfold, and a stale scaling leaves interior-point solves
         "almost solved".
@@ -345,7 +345,7 @@ class HorizonQP:
         stale = (
             self.session is not None
             and self._setup_r is not None
-            and not self.session.keeps_scaling
+            and not self.session.adapts_to_updates
             and not (1.0 / RESCALE <= r / self._setup_r <= RESCALE)
         )
         if self.session is not None and key == self._session_key and not stale:  # only the weights moved
