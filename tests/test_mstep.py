@@ -188,7 +188,7 @@ def test_a_plan_records_fallback_solves(scenario_a: po.Scenario) -> None:
     assert res.metrics()["solver_fallbacks"] == int(res.history.fallbacks.sum())
 
 
-def test_annealing_sets_up_a_session_afresh_only_where_its_scaling_does_not_keep(
+def test_annealing_sets_up_a_session_afresh_only_where_it_does_not_adapt_to_updates(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """Annealing moves r a hundredfold: OSQP with its adaptive rho keeps each platform's first session
