@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Iterator
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -89,20 +89,14 @@ class TreeCandidates:
     scale
         The largest coordinate of the locales and paths (computed here if not given), which sets the
         rounding slack of the chunks' discs.
-    loops
-        The compiled loops of :mod:`pmht_opt.kernels` for the search, or ``None`` for numpy's passes
-        (the same candidates in the same order).
     """
 
-    def __init__(
-        self, inputs: EStepInputs, margin: float, scale: float | None = None, loops: Any = None
-    ) -> None:
+    def __init__(self, inputs: EStepInputs, margin: float, scale: float | None = None) -> None:
         z, positions, r = inputs.locales, inputs.positions, inputs.r
         log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
         M = positions.shape[0]
         N = z.shape[0]
         self.z = z
-        self.loops = loops
         self.zx, self.zy = inputs.coordinates
         self.positions = positions
         self.trees = [cKDTree(positions[m], balanced_tree=False, compact_nodes=False) for m in range(M)]
@@ -310,20 +304,6 @@ class TreeCandidates:
         meets, measured directly."""
         z = self.z
         p0, p1 = int(plan.pair_start[lo]), int(plan.pair_start[hi])
-        if self.loops is not None:  # the same points, distances and order in one compiled pass
-            row, t, plat, d2 = self.loops.search(
-                plan.hits,
-                p0,
-                p1,
-                plan.pair_n,
-                plan.pair_m,
-                plan.rho2,
-                plan.points,
-                plan.times,
-                self.zx,
-                self.zy,
-            )
-            return lo, hi, row, t, plat, d2
         ph, kh = np.nonzero(plan.hits[p0:p1])
         ph += p0
         n, m = plan.pair_n[ph], plan.pair_m[ph]

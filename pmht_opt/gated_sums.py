@@ -1,15 +1,14 @@
 """The gated E-step's outputs, filled a block of locales at a time (:mod:`pmht_opt.gating`).
 
 A block's gated, normalised weights become columns of the dense layout, their products with the
-locales, each row's platform totals, entry count, largest weight and its column (on any thread, by
-numpy's passes or by the compiled loops of :mod:`pmht_opt.kernels`, with the same numbers); the sums
+locales, each row's platform totals, entry count, largest weight and its column (on any thread); the sums
 ``W`` and ``WZ`` over all triples are then formed block by block in order. The weights themselves are
 kept as the blocks' pieces (:class:`SparseParts`) and joined into one CSR matrix only when read.
 """
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -104,17 +103,13 @@ class GatedAccumulator:
     triples is allocated but the weights and their columns, which the CSR matrix keeps.
     """
 
-    def __init__(self, inputs: EStepInputs, N: int, T: int, M: int, loops: Any = None) -> None:
+    def __init__(self, inputs: EStepInputs, N: int, T: int, M: int) -> None:
         self.N, self.T, self.M = N, T, M
-        #: The compiled loops (:mod:`pmht_opt.kernels`) that prepare and add every block, or ``None``.
-        self.loops = loops
         # The locales' coordinates as two contiguous arrays: a block gathers from them twice.
         self.zx, self.zy = inputs.coordinates
         TM = T * M
         self.W = np.zeros(TM)
         self.WZ = np.zeros((2, TM))
-        #: The compiled loops' sums, ``(T M, 3)``: ``W`` and ``WZ`` of a column side by side.
-        self.sums: np.ndarray | None = None
         self.lse = np.empty(N)
         self.platform = np.empty((N, M))
         self.best_column = np.empty(N, dtype=np.intp)
@@ -133,8 +128,6 @@ class GatedAccumulator:
         totals, entry counts and largest weights."""
         lo, hi, local, t, plat, w, lse = block
         M, n = self.M, hi - lo
-        if self.loops is not None:
-            return self._prepare_compiled(self.loops, block)
         col = (t * M + plat).astype(self.column_dtype)
         wz = (w * self.zx[lo:hi][local], w * self.zy[lo:hi][local])
         platform = np.bincount(local * M + plat, weights=w, minlength=n * M).reshape(n, M)
@@ -144,32 +137,13 @@ class GatedAccumulator:
         largest, best_column = row_maxima(w, col, local, starts, self.T * M)
         return PreparedBlock(lo, hi, col, w, wz, lse, platform, counts, largest, best_column)
 
-    def _prepare_compiled(self, loops: Any, block: GatedBlock) -> PreparedBlock:
-        """:meth:`prepare` by the compiled loop (:mod:`pmht_opt.kernels`): the same numbers, one pass."""
-        lo, hi, local, t, plat, w, lse = block
-        M, n = self.M, hi - lo
-        col = np.empty(w.size, dtype=self.column_dtype)
-        wzx, wzy = np.empty(w.size), np.empty(w.size)
-        platform = np.empty((n, M))
-        counts = np.empty(n, dtype=np.intp)
-        largest = np.empty(n)
-        best_column = np.empty(n, dtype=np.intp)
-        zx, zy = self.zx[lo:hi], self.zy[lo:hi]
-        loops.prepare(w, local, t, plat, zx, zy, M, n, col, wzx, wzy, platform, counts, largest, best_column)
-        return PreparedBlock(lo, hi, col, w, (wzx, wzy), lse, platform, counts, largest, best_column)
-
     def add(self, block: PreparedBlock) -> None:
         """A prepared block, in order: the sums over all triples are formed here, by ``np.add.at`` in
         the order of the triples."""
         lo, hi, col, w = block.lo, block.hi, block.col, block.w
-        if self.loops is not None:
-            if self.sums is None:
-                self.sums = np.zeros((self.T * self.M, 3))
-            self.loops.accumulate(self.sums, col, w, block.wz[0], block.wz[1])
-        else:
-            np.add.at(self.W, col, w)
-            np.add.at(self.WZ[0], col, block.wz[0])
-            np.add.at(self.WZ[1], col, block.wz[1])
+        np.add.at(self.W, col, w)
+        np.add.at(self.WZ[0], col, block.wz[0])
+        np.add.at(self.WZ[1], col, block.wz[1])
         self.lse[lo:hi] = block.lse
         self.platform[lo:hi] = block.platform
         self.largest[lo:hi], self.best_column[lo:hi] = block.largest, block.best_column
@@ -181,9 +155,6 @@ class GatedAccumulator:
         """The weights (CSR with the dense layout, joined when first read) and everything computed
         with them."""
         N, T, M = self.N, self.T, self.M
-        if self.sums is not None:
-            self.W[:] = self.sums[:, 0]
-            self.WZ[:] = self.sums[:, 1:].T
         np.cumsum(self.indptr, out=self.indptr)
         weights = SparseParts(self.values, self.cols, self.indptr, (N, T * M))
         return GatedWeights(

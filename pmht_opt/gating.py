@@ -20,11 +20,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator
-from typing import Any, TypeVar
+from typing import TypeVar
 
 import numpy as np
 
-from pmht_opt import kernels
 from pmht_opt.candidates import Block, SupportCandidates, TreeCandidates
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.gated_sums import GatedAccumulator, GatedBlock, GatedWeights
@@ -74,9 +73,8 @@ def estep_gated(inputs: EStepInputs, margin: float, threads: int = 1) -> GatedWe
     of a block's size; only the weights and their columns, which the CSR matrix keeps, grow with
     the number of triples.
     """
-    loops = _loops()
-    out = GatedAccumulator(inputs, *_sizes(inputs), loops)
-    for block in _gated_blocks(inputs, margin, threads, out.prepare, loops):
+    out = GatedAccumulator(inputs, *_sizes(inputs))
+    for block in _gated_blocks(inputs, margin, threads, out.prepare):
         if block is None:
             return None
         out.add(block)
@@ -87,17 +85,11 @@ def gated_log_normalisers(inputs: EStepInputs, margin: float, threads: int = 1) 
     """The log-normalisers of :func:`estep_gated` alone (bit for bit), without keeping its weights;
     ``None`` where it would give way to the dense E-step."""
     lse = np.empty(inputs.locales.shape[0])
-    for block in _gated_blocks(inputs, margin, threads, lambda b: (b[0], b[1], b[-1]), _loops()):
+    for block in _gated_blocks(inputs, margin, threads, lambda b: (b[0], b[1], b[-1])):
         if block is None:
             return None
         lo, hi, lse[lo:hi] = block
     return lse
-
-
-def _loops() -> Any:
-    """The compiled loops for this E-step, or ``None`` for the numpy passes: decided once per E-step,
-    so that every block of it is computed, and summed, the same way."""
-    return kernels.compiled()
 
 
 def _sizes(inputs: EStepInputs) -> tuple[int, int, int]:
@@ -110,14 +102,14 @@ B = TypeVar("B")
 
 
 def _gated_blocks(
-    inputs: EStepInputs, margin: float, threads: int, finish: Callable[[GatedBlock], B], loops: Any
+    inputs: EStepInputs, margin: float, threads: int, finish: Callable[[GatedBlock], B]
 ) -> Iterator[B | None]:
     """The gated E-step a block of locales at a time: ``finish`` of ``(lo, hi, local rows, times,
     platforms, normalised weights, log-normalisers of rows lo .. hi - 1)`` for the kept triples, in
     order; a ``None`` (and nothing after it) where the dense E-step should run instead. With
     ``threads > 1`` the blocks, ``finish`` included, are worked on concurrently and taken in order
     (:func:`pmht_opt.parallel.ordered_map`): the same blocks, arithmetic and decisions."""
-    source = _choose_source(inputs, margin, loops)
+    source = _choose_source(inputs, margin)
     if source is None:
         yield None
         return
@@ -126,7 +118,7 @@ def _gated_blocks(
     const = log_const(inputs.r, T, M, inputs.log_time_prior is None, inputs.log_platform_prior is None)
 
     def work(lo: int, hi: int) -> tuple[int, B | None]:
-        count, block = _gate(inputs, source.block(lo, hi), const, margin, loops)
+        count, block = _gate(inputs, source.block(lo, hi), const, margin)
         return count, None if block is None else finish(block)
 
     total = 0
@@ -139,10 +131,10 @@ def _gated_blocks(
 
 
 def _gate(
-    inputs: EStepInputs, candidates: Block, const: float, margin: float, loops: Any = None
+    inputs: EStepInputs, candidates: Block, const: float, margin: float
 ) -> tuple[int, GatedBlock | None]:
     """One block's candidates gated and normalised: ``(number of candidates, the block)``, the block
-    ``None`` if some locale of it has no finite candidate; by the compiled ``loops`` if given."""
+    ``None`` if some locale of it has no finite candidate."""
     z, positions, r = inputs.locales, inputs.positions, inputs.r
     log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
     M = positions.shape[0]
@@ -150,8 +142,6 @@ def _gate(
     count = row.size
     if d2 is None:
         d2 = _squared_distances(z, positions, row, t, plat)
-    if loops is not None:
-        return _gate_compiled(loops, inputs, (lo, hi, row, t, plat, d2), const, margin)
     # The candidates' log weights, with the dense E-step's arithmetic (bit for bit the same).
     a = log_weights_from_d2(d2, r, const)
     if log_tau is not None:
@@ -170,29 +160,6 @@ def _gate(
     s = np.bincount(local, weights=a, minlength=hi - lo)
     a *= (1.0 / s)[local]
     return count, (lo, hi, local, t, plat, a, best + np.log(s))
-
-
-def _gate_compiled(
-    loops: Any, inputs: EStepInputs, candidates: Block, const: float, margin: float
-) -> tuple[int, GatedBlock | None]:
-    """:func:`_gate` by the compiled loops (:mod:`pmht_opt.kernels`): the same numbers in two passes
-    and numpy's ``exp`` and ``log``."""
-    log_tau, log_k = inputs.log_time_prior, inputs.log_platform_prior
-    lo, hi, row, t, plat, d2 = candidates
-    assert d2 is not None
-    if row.size == 0:
-        return 0, None
-    none = np.empty((0, 0))
-    lt = none if log_tau is None else log_tau
-    lk = none if log_k is None else log_k
-    pair_best, best = loops.maxima(d2, row, t, plat, lo, hi, -0.5 / inputs.r, const, lt, lk)
-    if not np.all(np.isfinite(best)):
-        return row.size, None
-    kept = loops.keep(d2, row, t, plat, lo, pair_best, best, margin, _UNDERFLOW)
-    a = np.exp(d2[:kept])  # a new array: the weights are kept, the candidates' arrays are not
-    local, t, plat = row[:kept], t[:kept], plat[:kept]
-    s = loops.normalise(a, local, hi - lo)
-    return row.size, (lo, hi, local, t, plat, a, best + np.log(s))
 
 
 def _squared_distances(
@@ -227,7 +194,7 @@ def _gate_block(
 
 
 def _choose_source(
-    inputs: EStepInputs, margin: float, loops: Any = None
+    inputs: EStepInputs, margin: float
 ) -> TreeCandidates | SupportCandidates | None:
     """Where the candidates come from, or ``None`` where the gate would keep too many to pay.
 
@@ -257,7 +224,7 @@ def _choose_source(
     n_times = np.isfinite(log_tau).sum(axis=1) if log_tau is not None else np.full(N, T)
     n_plats = np.isfinite(log_k).sum(axis=1) if log_k is not None else np.full(N, M)
     support = float(np.sum(n_times * n_plats))
-    tree = TreeCandidates(inputs, margin, scale, loops)
+    tree = TreeCandidates(inputs, margin, scale)
     estimate = tree.estimate(limit=budget)
     if min(support, estimate) > budget:
         return None

@@ -13,11 +13,6 @@ column compares only rows of the column's own system, the others holding exact z
 band LAPACK works in blocks of columns counted from the start of each call, so the parts matter.)
 Where the function pointers cannot be had (a SciPy without them, or with other signatures), each
 part goes through the f2py wrappers on the calling thread: the same calls, one at a time.
-
-Asked for (``compiled=True``) and where numba is installed, the two routines run as compiled loops
-instead (:mod:`solvers.band_kernels`): the same algorithm without a BLAS call per column, about three
-times faster on narrow bands, the same pivots and the same numbers up to rounding (to the last bit
-where the BLAS fuses multiply-adds as the loops do).
 """
 
 from __future__ import annotations
@@ -32,7 +27,6 @@ from typing import Any
 import numpy as np
 from scipy.linalg import lapack
 
-from solvers import band_kernels
 from solvers.threads import LazyPool, usable_cores, wait_all
 
 __all__ = ["BandLU"]
@@ -105,10 +99,6 @@ class BandLU:
     threads
         How many parts run at once (the calling thread takes one lane of them). The answer does not
         depend on it.
-    compiled
-        Factorise and solve by the compiled loops of :mod:`solvers.band_kernels` where they can run
-        (numba installed, ``k`` and the number of right-hand sides within their limits), else by
-        LAPACK.
 
     Raises
     ------
@@ -128,8 +118,6 @@ class BandLU:
         b: np.ndarray,
         parts: Sequence[tuple[int, int]],
         threads: int = 1,
-        *,
-        compiled: bool = False,
     ) -> None:
         if band.ndim != 2 or band.shape[0] != 3 * k + 1:
             raise ValueError(f"band {band.shape} does not fit k = {k}.")
@@ -149,7 +137,6 @@ class BandLU:
             raise ValueError(f"parts {list(parts)} do not cover rows 0..{self.N} in order.")
         self.parts = [(int(lo), int(hi)) for lo, hi in parts]  # ctypes takes Python integers only
         self.threads = max(1, int(threads))
-        self.compiled = bool(compiled)
         self.ipiv = np.empty(self.N, dtype=np.intc)
         infos = self._run(b, factorise=True)
         for (lo, _), info in zip(self.parts, infos, strict=True):
@@ -176,25 +163,11 @@ class BandLU:
         ``b``, in ``threads`` lanes (the first on this thread); waits for every lane, also through
         interrupts, so that no thread writes into the arrays after this returns. Returns each
         part's ``info``."""
-        loops = band_kernels.compiled_loops(self.k, b.shape[1]) if self.compiled else None
-        call: Callable[[int, int], int]
-        if loops is not None:
-            factor, solve = loops
-            ab, rhs = self.band.T.reshape(-1), b.T  # views: (N, 3k + 1) and (K, N), C-ordered
 
-            def call(lo: int, hi: int) -> int:
-                info = int(factor(ab, lo, hi, self.ipiv)) if factorise else 0
-                if info == 0:
-                    solve(ab, lo, hi, self.ipiv, rhs)
-                return info
+        def call(lo: int, hi: int) -> int:
+            return self._gbsv(lo, hi, b) if factorise else self._gbtrs(lo, hi, b)
 
-            lanes = min(self.threads, len(self.parts))
-        else:
-
-            def call(lo: int, hi: int) -> int:
-                return self._gbsv(lo, hi, b) if factorise else self._gbtrs(lo, hi, b)
-
-            lanes = min(self.threads, len(self.parts)) if _GBSV is not None and _GBTRS is not None else 1
+        lanes = min(self.threads, len(self.parts)) if _GBSV is not None and _GBTRS is not None else 1
         infos = [0] * len(self.parts)
 
         def lane(first: int) -> None:

@@ -191,10 +191,6 @@ class BandedSmoother:
         ``T >= 1``, the number of steps after the known ``x_0``.
     batch
         ``B >= 1``, the number of independent systems solved together.
-    compiled
-        Factorise and solve by the compiled loops of :mod:`solvers.band_kernels` where numba is
-        installed (about three times faster than LAPACK's routines on this narrow band, the same
-        numbers up to rounding), else by LAPACK.
 
     Raises
     ------
@@ -208,7 +204,7 @@ class BandedSmoother:
     """
 
     def __init__(
-        self, F: ArrayLike, Q: ArrayLike, h: ArrayLike, horizon: int, batch: int, *, compiled: bool = False
+        self, F: ArrayLike, Q: ArrayLike, h: ArrayLike, horizon: int, batch: int
     ) -> None:
         F = np.asarray(F, dtype=float)
         if F.ndim != 2 or F.shape[0] != F.shape[1] or F.shape[0] < 1:
@@ -230,7 +226,6 @@ class BandedSmoother:
         if int(batch) != batch or batch < 1:
             raise ProblemError(f"batch must be a positive integer, got {batch!r}.")
         self.n, self.T, self.B = n, int(horizon), int(batch)
-        self.compiled = _compiled_flag(compiled)
         self.F, self.Q, self.h, self.L = F.copy(), Q.copy(), h.copy(), L  # the caller's may change
         # Dimensionless unknowns: x = d * xs, lam = lam_s / d (module docstring).
         d = np.sqrt(np.diag(Q))
@@ -417,7 +412,7 @@ class BandedSmoother:
         for index, value in zip(self._pen_index, self._pen_value, strict=True):
             flat[index] += rho * value
         try:
-            return BandLU(band.T, self.k, b, self._parts(), threads, compiled=self.compiled)
+            return BandLU(band.T, self.k, b, self._parts(), threads)
         except np.linalg.LinAlgError as err:
             raise ProblemError(
                 f"The KKT matrix is numerically singular ({err}): the weights or r are out of range."
@@ -568,13 +563,6 @@ class BandedFactor:
         return np.moveaxis(z[..., n:], 0, -1), np.moveaxis(z[..., :n] @ s.L, 0, -1)
 
 
-def _compiled_flag(compiled: object) -> bool:
-    """``compiled`` as a bool; :class:`ProblemError` for anything but ``True`` or ``False``."""
-    if not isinstance(compiled, (bool, np.bool_)):
-        raise ProblemError(f"compiled must be True or False, got {compiled!r}.")
-    return bool(compiled)
-
-
 @functools.lru_cache(maxsize=64)
 def _groups(B: int, T: int, n: int, min_steps: int, max_parts: int) -> tuple[tuple[int, int], ...]:
     """:meth:`BandedSmoother._parts` for a batch of ``B`` systems of ``T`` steps of ``n`` states (computed
@@ -603,7 +591,6 @@ def banded_smoother(
     refine: int = 1,
     check: bool = False,
     threads: int = 1,
-    compiled: bool = False,
 ) -> BandedSmootherResult:
     """Smooth a batch of systems sharing ``(F, Q, h, r)``: exact, one banded LU for the batch.
 
@@ -627,8 +614,6 @@ def banded_smoother(
         ``(B, T)`` non-negative weights: the measurement variance at step ``t`` is ``r / w_t``.
     refine, check, threads
         See :meth:`BandedSmoother.solve`.
-    compiled
-        See :class:`BandedSmoother`.
 
     Returns
     -------
@@ -659,14 +644,13 @@ def banded_smoother(
         ha.tobytes(),
         T,
         B,
-        _compiled_flag(compiled),
     )
     with _CACHE_LOCK:
         smoother = _CACHE.get(key)
         if smoother is not None:
             _CACHE.move_to_end(key)
     if smoother is None:
-        smoother = BandedSmoother(Fa, Qa, ha, T, B, compiled=compiled)
+        smoother = BandedSmoother(Fa, Qa, ha, T, B)
         with _CACHE_LOCK:
             _CACHE[key] = smoother
             while len(_CACHE) > _CACHE_SIZE:

@@ -24,7 +24,7 @@ PACKAGES = (
     "cvxpy",
     "osqp",
     "clarabel",
-    "numba",
+    "pyvrp",
     "scs",
     "highspy",
     "ortools",
@@ -66,9 +66,7 @@ def load_average() -> float | None:
 
 
 def provenance() -> dict[str, Any]:
-    """Commit, dirty flag, package versions, Python, machine, CPU count, load average, date, command and
-    the switch of the compiled loops (``PMHT_OPT_KERNELS``, ``None`` if unset: they run wherever numba
-    is installed, which ``packages`` records).
+    """Commit, dirty flag, package versions, Python, machine, CPU count, load average, date and command.
 
     ``commit`` and ``dirty`` are ``None`` outside a git checkout (an installed copy of the studies).
     """
@@ -86,5 +84,4 @@ def provenance() -> dict[str, Any]:
         "load_average": load_average(),
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]) if sys.argv and sys.argv[0] else "",
-        "kernels": os.environ.get("PMHT_OPT_KERNELS"),
     }

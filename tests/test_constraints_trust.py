@@ -120,8 +120,9 @@ def test_a_binding_speed_limit_on_b_solves_hard_and_soft() -> None:
     soft = po.plan_pmht(
         sc, po.PMHTConfig(solver="clarabel", max_iter=12, constraints=[po.SpeedLimit(vmax, soft=True)])
     )
-    # Weight 1e4 on the excess: the soft optimum is within rounding of the limit.
-    assert soft.constraint_reports()[0].max_violation <= 1e-6 * vmax
+    # Weight 1e4 on the excess: the soft optimum is at the limit, met to the interior point's accuracy
+    # on rows (1e-4 of their size; measured 2e-8 to 1.6e-5 under different BLAS kernels).
+    assert soft.constraint_reports()[0].max_violation <= 1e-4 * vmax
     osqp_soft = po.plan_pmht(
         sc, po.PMHTConfig(solver="osqp", max_iter=12, constraints=[po.SpeedLimit(vmax, soft=True)])
     )

@@ -4,24 +4,17 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from pmht_opt.cli import main as cli_main
-from solvers import band_kernels
 from studies.scaling_study.design import scaling_scenario
 from studies.scaling_study.measure import agreement, time_plan
 from studies.scaling_study.summary import fit_slope
 
 
 def test_scaling_study_quick(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    # The study's machinery, not the compiled loops (tested on their own): without them each of the
-    # 13 spawned children saves numba's import, about 0.3 s. The plans agree to rounding either way.
-    monkeypatch.setenv("PMHT_OPT_KERNELS", "0")
     args = ["study", "scaling", "--quick", "--backends", "kalman", "--out", str(tmp_path), "--quiet"]
     code = cli_main(args)
     assert code == 0
@@ -55,27 +48,6 @@ def test_scaling_study_quick(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) ->
     assert kept["machine"] == summary["machine"] and kept["provenance"] == summary["provenance"]
     assert kept["written_by"]["commit"] == summary["provenance"]["commit"]
 
-
-def test_the_warm_up_loads_what_a_first_plan_loads() -> None:
-    """In a fresh process, the warm-up before a measured plan leaves every compiled loop of the
-    gated E-step and the banded LU loaded (where numba is installed), so a first plan loads none."""
-    code = "\n".join(
-        [
-            "from studies.scaling_study.measure import warm_up",
-            "warm_up('kalman', 'auto', 5)",
-            "from pmht_opt import kernels",
-            "from solvers import band_kernels",
-            "ns = kernels.compiled()",
-            "loops = [] if ns is None else list(vars(ns).values())",
-            "loops += list(band_kernels.compiled_loops(3, 2) or ())",  # the exact smoother's x and y
-            "print(len(loops), all(len(f.overloads) > 0 for f in loops))",
-        ]
-    )
-    env = {**os.environ, "PMHT_OPT_KERNELS": "auto"}
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
-    count, loaded = done.stdout.split()
-    assert loaded == "True"
-    assert int(count) == (8 if band_kernels.available() else 0)
 
 
 def test_one_plan_is_measured_in_process() -> None:

@@ -323,9 +323,6 @@ def test_sigkill_of_the_parent_leaves_no_worker_alive(tmp_path: Path) -> None:
 def test_same_rows_with_one_worker_two_workers_and_dask(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    # The trial machinery, not the compiled loops: the worker processes skip numba's import (about
-    # 0.3 s each). The plans agree to rounding either way.
-    monkeypatch.setenv("PMHT_OPT_KERNELS", "0")
     table = TrialTable(
         "plans", small_plan, Schema({"seed": "int"}, {"distance": "float", "per_platform": "list"})
     )

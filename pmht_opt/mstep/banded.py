@@ -6,8 +6,7 @@ and axis it is banded: :class:`solvers.banded.BandedSmoother` solves its optimal
 dynamics kept as constraints, no ``Q^-1`` formed) by a banded LU with one step of iterative
 refinement, to the rounding level, for the whole batch of platforms at once (x and y share the
 factorisation). It also returns the process noise from the multipliers, so the prior term of the EM
-objective keeps its precision when ``q dt^5`` is tiny against the positions. Where numba is
-installed the LU runs as compiled loops (:func:`pmht_opt.kernels.lu_compiled`), else through LAPACK.
+objective keeps its precision when ``q dt^5`` is tiny against the positions.
 """
 
 from __future__ import annotations
@@ -17,7 +16,6 @@ from typing import ClassVar
 import numpy as np
 
 import solvers
-from pmht_opt import kernels
 from pmht_opt.exceptions import SolverError
 from pmht_opt.mstep.base import MStep, MStepData, MStepOutput
 from solvers.banded import BandedSmoother, BandedSmootherResult
@@ -30,14 +28,8 @@ class BandedMStep(MStep):
 
     def __init__(self, *args: object, **kwargs: object) -> None:
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
-        self.smoother = BandedSmoother(
-            self.model.F3,
-            self.model.Q3,
-            np.array([1.0, 0.0, 0.0]),
-            self.T,
-            self.M,
-            compiled=kernels.lu_compiled(),
-        )
+        E1 = np.array([1.0, 0.0, 0.0])
+        self.smoother = BandedSmoother(self.model.F3, self.model.Q3, E1, self.T, self.M)
 
     def smooth(self, data: MStepData) -> BandedSmootherResult:
         """The exact smoother's answer for these weights (every platform, both axes)."""

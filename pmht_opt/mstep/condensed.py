@@ -56,7 +56,6 @@ import scipy.sparse as sp
 from scipy.linalg import solve_triangular
 
 import solvers
-from pmht_opt import kernels
 from pmht_opt.model import STATE_DIM, MotionModel
 from pmht_opt.mstep.formulation import BLOCK, QPLayout
 from pmht_opt.mstep.rows import ExtraRows
@@ -183,9 +182,7 @@ class CondensedQP:
     def __init__(self, model: MotionModel, layout: QPLayout) -> None:
         self.layout = layout
         self.T = layout.T
-        self.smoother = BandedSmoother(
-            model.F3, model.Q3, np.array([1.0, 0.0, 0.0]), self.T, 1, compiled=kernels.lu_compiled()
-        )
+        self.smoother = BandedSmoother(model.F3, model.Q3, np.array([1.0, 0.0, 0.0]), self.T, 1)
         self._rows: CondensedRows | None = None
         self._extra: ExtraRows | None = None
         #: The units that bound the last answer to the current rows.

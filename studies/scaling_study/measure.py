@@ -3,10 +3,9 @@
 Each trial runs in a fresh spawned process (:func:`studies.scaling.verify_executor`), so its peak
 resident set size (``ru_maxrss``) is that plan's alone: runs share no caches, pools or heap.
 Before measuring, the child plans a tiny scenario with the same configuration (:func:`warm_up`), so
-that what a process pays once (numba's import and its compiled loops loaded from the disk cache,
-about 0.3 s and 100 MiB where the ``fast`` extra is installed; thread pools) is not counted as the
-measured plan's. ``base_rss_mib`` is the child's peak before planning (interpreter, libraries, the
-warm-up, scenario); ``peak_rss_mib`` the peak after.
+that what a process pays once (imports, thread pools) is not counted as the measured plan's.
+``base_rss_mib`` is the child's peak before planning (interpreter, libraries, the warm-up,
+scenario); ``peak_rss_mib`` the peak after.
 
 Whether each E-step was gated is read from the plan's history (``IterationHistory.estep_gated``: the
 initial E-step and, per iteration, the one whose weights feed the next M-step), never by patching
@@ -73,10 +72,10 @@ def trial(
 
 
 def warm_up(solver: str, gate: str, iterations: int, plain: bool = False) -> None:
-    """The imports, pools and compiled loops a first plan loads, loaded before anything is measured:
-    one plan of a tiny scenario (12 locales, 12 steps, 2 platforms) in this configuration and, unless
-    the E-step is dense, three iterations of plain EM on one whose last E-step is gated (60 locales,
-    40 steps, 3 platforms), which loads the gated E-step's compiled loops."""
+    """The imports and pools a first plan loads, loaded before anything is measured: one plan of a
+    tiny scenario (12 locales, 12 steps, 2 platforms) in this configuration and, unless the E-step is
+    dense, three iterations of plain EM on one whose last E-step is gated (60 locales, 40 steps, 3
+    platforms)."""
     plan_pmht(scaling_scenario(12, 12, 2, 0), config(solver, gate, iterations, plain))
     if gate != "off":
         plan_pmht(scaling_scenario(60, 40, 3, 0), config(solver, gate, 3, plain=True))

@@ -85,6 +85,33 @@ def _cases() -> dict[str, Callable[[], dict[str, np.ndarray]]]:
 
 CASES = _cases()
 
+#: Largest position difference (absolute; the areas are about 10 across) accepted against the
+#: recorded plan, by what solved the case's M-steps. Each is the accuracy the backend promises on one
+#: M-step, widened for what a few tens of EM iterations make of it (each M-step's answer feeds the
+#: next E-step): the exact smoother solves to rounding; Clarabel stops at a relative gap of 1e-12
+#: without constraints and 1e-8 with them, where hard rows are met to 1e-5 of their size
+#: (:data:`pmht_opt.mstep.rows.BACKOFF`); OSQP stops ADMM at 1e-9 without constraints, 1e-5 with
+#: them. Another CPU or BLAS moves the plans by far less (at most 1.2e-6 in clarabel's constrained
+#: cases and 6.6e-6 in osqp's, measured); a change of behaviour moves them by far more.
+POSITION_TOL = {
+    "exact": 1e-8,
+    "interior point": 1e-5,
+    "interior point, constrained": 1e-4,
+    "admm": 1e-4,
+    "admm, constrained": 1e-3,
+}
+
+
+def tolerance(name: str) -> float:
+    """The position tolerance of case ``name`` (:data:`POSITION_TOL`)."""
+    kind = name.split("-")[0]
+    if kind in ("constrained", "visitall", "smoothed"):
+        return POSITION_TOL["interior point, constrained"]  # "auto" with constraints: Clarabel
+    backend = name.split("-")[1]
+    return POSITION_TOL[{"kalman": "exact", "clarabel": "interior point", "cvxpy": "interior point"}.get(
+        backend, "admm"
+    )]
+
 
 def run_case(name: str) -> dict[str, np.ndarray]:
     """The arrays of one case."""

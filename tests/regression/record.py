@@ -10,9 +10,11 @@ change of behaviour re-records the file in its own commit, with the reason in ``
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -20,6 +22,20 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from cases import CASES, run_case  # noqa: E402
+
+
+def environment(commit: str) -> dict[str, Any]:
+    """The machine, packages and BLAS the reference plans were recorded with."""
+    sys.path.insert(0, str(HERE.parent.parent))
+    from studies.provenance import provenance
+
+    info = provenance()
+    info["commit"] = commit
+    config = np.show_config(mode="dicts")
+    blas = config.get("Build Dependencies", {}).get("blas", {})
+    info["blas"] = {k: blas.get(k) for k in ("name", "version", "openblas configuration")}
+    info["cpu"] = config.get("SIMD Extensions", {})
+    return info
 
 
 def main() -> None:
@@ -34,7 +50,8 @@ def main() -> None:
     ).stdout.strip()
     arrays["commit"] = np.asarray(commit)
     np.savez_compressed(HERE / "plans.npz", **arrays)
-    print(f"wrote {HERE / 'plans.npz'} ({len(CASES)} cases, commit {commit})")
+    (HERE / "environment.json").write_text(json.dumps(environment(commit), indent=2) + "\n")
+    print(f"wrote {HERE / 'plans.npz'} and environment.json ({len(CASES)} cases, commit {commit})")
 
 
 if __name__ == "__main__":
