@@ -49,8 +49,9 @@ def main() -> None:
         ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=False, cwd=HERE
     ).stdout.strip()
     arrays["commit"] = np.asarray(commit)
+    env = environment(commit)  # before writing: the checkout's state as the plans were made
     np.savez_compressed(HERE / "plans.npz", **arrays)
-    (HERE / "environment.json").write_text(json.dumps(environment(commit), indent=2) + "\n")
+    (HERE / "environment.json").write_text(json.dumps(env, indent=2) + "\n")
     print(f"wrote {HERE / 'plans.npz'} and environment.json ({len(CASES)} cases, commit {commit})")
 
 
