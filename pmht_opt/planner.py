@@ -92,7 +92,7 @@ class PMHTConfig:
         Gate of the E-step (:mod:`pmht_opt.estep`): a margin ``G`` in nats, ``"auto"`` (default) or
         ``None`` (always dense). A triple (locale, time, platform) whose log weight is more than ``G``
         below the best of its (locale, platform) pair gets weight zero; the others are found within
-        a radius of each locale (:mod:`pmht_opt.candidates`) without forming the ``N x T x M``
+        a radius of each locale (:mod:`pmht_opt.estep.candidates`) without forming the ``N x T x M``
         array, and the weights are stored sparse. ``"auto"`` is ``G = log(T M) + 37``: the mass
         dropped from any pair is below ``1e-16`` of it, so the E-step, including the re-estimated
         platform prior, equals the dense one to rounding and whole plans agree with dense ones to

@@ -11,10 +11,10 @@ import pytest
 import scipy.sparse as sp
 from scipy.special import logsumexp
 
-from pmht_opt.dense import platform_sums
 from pmht_opt.estep import estep, estep_scored, log_likelihood
+from pmht_opt.estep.dense import platform_sums
+from pmht_opt.estep.weights import WEIGHTS
 from pmht_opt.exceptions import ConfigError
-from pmht_opt.weights import WEIGHTS
 
 
 def brute_force(
@@ -213,8 +213,8 @@ def test_a_scored_estep_is_the_estep_and_the_log_likelihood(
 ) -> None:
     """``estep_scored`` gives ``estep``'s result and ``log_likelihood``'s number to the last bit,
     whichever of the two is gated."""
-    from pmht_opt.gating import gate_margin, gated_log_normalisers
-    from pmht_opt.likelihood import EStepInputs
+    from pmht_opt.estep.gating import gate_margin, gated_log_normalisers
+    from pmht_opt.estep.likelihood import EStepInputs
 
     z, pos = _paths(5, 120, 400, 3)
     if far:
@@ -239,7 +239,7 @@ def test_a_scored_estep_over_many_blocks_on_threads_is_the_one_thread_one(
 ) -> None:
     """Many blocks on two threads, each with its own scratch for the score: the same E-step and
     score as on one thread, run after run, and the score equals ``log_likelihood``'s."""
-    from pmht_opt import likelihood
+    from pmht_opt.estep import likelihood
 
     monkeypatch.setattr(likelihood, "_BLOCK", 4000)  # a dozen rows per block
     z, pos = _paths(6, 300, 100, 4)

@@ -188,8 +188,8 @@ def _brute_candidates(z: np.ndarray, pos: np.ndarray, query: np.ndarray, rho2: n
 @pytest.mark.parametrize("prior", ["uniform", "dirichlet", "windows"])
 @pytest.mark.parametrize("r", [0.002, 0.05, 1.0])
 def test_few_locales_choose_candidates_as_an_exact_count_would(prior: str, r: float) -> None:
-    from pmht_opt import candidates, gating
-    from pmht_opt.likelihood import EStepInputs
+    from pmht_opt.estep import candidates, gating
+    from pmht_opt.estep.likelihood import EStepInputs
 
     z, pos, lt, lk, _ = _case(4, prior, r)
     z, lt, lk = z[:100], None if lt is None else lt[:100], None if lk is None else lk[:100]
@@ -225,8 +225,8 @@ def test_chunked_search_finds_what_radius_queries_find(seed: int, block: int, mo
     trees' radius queries (so every sum over them is formed as before), with the dense E-step's
     squared distances; also when blocks split the locales and the horizon is not a whole number of
     chunks."""
-    from pmht_opt import candidates
-    from pmht_opt.likelihood import EStepInputs
+    from pmht_opt.estep import candidates
+    from pmht_opt.estep.likelihood import EStepInputs
 
     monkeypatch.setattr(candidates, "_BLOCK", block)
     z, pos, _, _, _ = _case(seed, "uniform", 0.01)
@@ -318,9 +318,9 @@ def test_the_count_inside_bounds_the_candidates_and_keeps_the_verdict(
     search's differ); and the estimate of a few locales, which uses that count to settle "too many"
     early, gives the exact count's verdict at every limit, those next to either count included. On
     a grid of coordinates many points are at equal distances from a locale."""
-    from pmht_opt import candidates
-    from pmht_opt.candidates import TreeCandidates
-    from pmht_opt.likelihood import EStepInputs
+    from pmht_opt.estep import candidates
+    from pmht_opt.estep.candidates import TreeCandidates
+    from pmht_opt.estep.likelihood import EStepInputs
 
     z, pos, lt, lk, r = _case(seed, prior, float(np.exp(log_r)))
     if grid:
@@ -360,7 +360,7 @@ def test_the_count_inside_bounds_the_candidates_and_keeps_the_verdict(
 def test_blocks_of_locales_do_not_change_a_digit(prior: str, monkeypatch: Any) -> None:
     """The gated E-step in blocks of a few locales equals it in one block bit for bit, and its sums
     are those of one pass over its sparse weights in their order."""
-    from pmht_opt import candidates
+    from pmht_opt.estep import candidates
 
     z, pos, lt, lk, r = _case(11, prior, 0.01)
     whole = estep(z, pos, lt, lk, r, gate="auto")
@@ -414,8 +414,7 @@ def test_the_objective_alone_is_the_estep_s_bit_for_bit(
     """Property: the log-likelihood computed without the weights (annealing's objective at the old
     ``r``) is the E-step's own, bit for bit, whether the E-step is gated, dense, or gives up the gate
     midway; also with a block size that splits the locales."""
-    from pmht_opt import candidates
-    from pmht_opt.estep import log_likelihood
+    from pmht_opt.estep import candidates, log_likelihood
 
     z, pos, lt, lk, r = _case(seed, prior, float(np.exp(log_r)))
     es = estep(z, pos, lt, lk, r, gate=gate)
@@ -435,8 +434,7 @@ def test_the_objective_alone_follows_a_gate_given_up_midway(monkeypatch: Any) ->
     computed alone follows the same path and gives the same number, bit for bit."""
     import math
 
-    from pmht_opt import candidates, gating, likelihood
-    from pmht_opt.estep import log_likelihood
+    from pmht_opt.estep import candidates, gating, likelihood, log_likelihood
 
     monkeypatch.setattr(candidates.TreeCandidates, "estimate", lambda self, limit=math.inf: 0.0)
     monkeypatch.setattr(candidates, "_BLOCK", 64)
@@ -470,8 +468,8 @@ def test_gated_weights_are_joined_on_first_read_only() -> None:
     import pickle
     import threading
 
-    from pmht_opt import candidates
-    from pmht_opt.gated_sums import SparseParts
+    from pmht_opt.estep import candidates
+    from pmht_opt.estep.gated_sums import SparseParts
 
     z, pos, lt, lk, r = _case(11, "uniform", 0.01)
     old = candidates._BLOCK

@@ -42,7 +42,7 @@ def test_estep_is_the_same_on_any_number_of_threads(
     prior: str, r: float, gate: Any, monkeypatch: Any
 ) -> None:
     """Small blocks (many of them) on 1, 2 and 3 threads: every weight, sum and normaliser equal."""
-    from pmht_opt import candidates, likelihood
+    from pmht_opt.estep import candidates, likelihood
 
     monkeypatch.setattr(likelihood, "_BLOCK", 2000)  # a few locales per dense block
     monkeypatch.setattr(candidates, "_BLOCK", 3000)  # and per gated block
@@ -59,7 +59,8 @@ def test_estep_is_the_same_on_any_number_of_threads(
 
 def test_plans_are_the_same_on_any_number_of_threads(monkeypatch: Any) -> None:
     """Whole annealed plans, dense and gated E-steps, with 1 and 2 threads: identical to the last bit."""
-    from pmht_opt import candidates, likelihood, parallel
+    from pmht_opt import parallel
+    from pmht_opt.estep import candidates, likelihood
 
     monkeypatch.setattr(likelihood, "_BLOCK", 5000)
     monkeypatch.setattr(candidates, "_BLOCK", 5000)

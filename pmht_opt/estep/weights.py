@@ -1,7 +1,7 @@
 """How an E-step's weights are held: formed when first read, never before.
 
 A gated E-step computes its weights a block of locales at a time and keeps them as the blocks' pieces
-(:class:`~pmht_opt.gated_sums.SparseParts`), joined into one CSR matrix when read; a dense E-step
+(:class:`~pmht_opt.estep.gated_sums.SparseParts`), joined into one CSR matrix when read; a dense E-step
 keeps none and recomputes them, bit for bit, from its inputs when read (:class:`DenseRows`). The EM
 loop itself needs only ``W``, ``WZ``, the normalisers and the rows' statistics, which both form on the
 way. :class:`WeightsOnRead` is the field of :class:`~pmht_opt.estep.EStepResult` that does this.
@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from pmht_opt.gated_sums import SparseParts
-from pmht_opt.likelihood import EStepInputs
+from pmht_opt.estep.gated_sums import SparseParts
+from pmht_opt.estep.likelihood import EStepInputs
 
 #: Weights below this are left out of an :class:`EStepSummary` (each locale's weights sum to one).
 SUMMARY_FLOOR = 1e-12

@@ -6,7 +6,7 @@ With ``gate=G`` a triple is dropped when its log weight is more than ``G`` nats 
 underflows to exactly zero anyway). A KD-tree per platform gives each pair's nearest path point, whose
 log weight (priors included) bounds the pair's best from below, and a triple can only be kept if its
 distance satisfies ``d^2 <= 2r (max_t log pi^tau + log pi^k - bound + G)``: the candidates are the
-path points within that radius (:mod:`pmht_opt.candidates`). Gating per pair, not per locale, keeps
+path points within that radius (:mod:`pmht_opt.estep.candidates`). Gating per pair, not per locale, keeps
 every platform's share ``pi^k[n, m] = sum_t w[n, t, m]`` exact down to the underflow, however small:
 the re-estimated platform prior can then revive a platform exactly as in the dense EM. With
 ``G = log(T M) + 37`` (``"auto"``) the mass dropped from a pair is below ``exp(-37) < 1e-16`` of it:
@@ -24,10 +24,9 @@ from typing import TypeVar
 
 import numpy as np
 
-from pmht_opt.candidates import Block, SupportCandidates, TreeCandidates
-from pmht_opt.exceptions import ConfigError
-from pmht_opt.gated_sums import GatedAccumulator, GatedBlock, GatedWeights
-from pmht_opt.likelihood import (
+from pmht_opt.estep.candidates import Block, SupportCandidates, TreeCandidates
+from pmht_opt.estep.gated_sums import GatedAccumulator, GatedBlock, GatedWeights
+from pmht_opt.estep.likelihood import (
     _SAFE_SCALE,
     _UNDERFLOW,
     EStepInputs,
@@ -35,6 +34,7 @@ from pmht_opt.likelihood import (
     log_weights_from_d2,
     squared_distance,
 )
+from pmht_opt.exceptions import ConfigError
 from pmht_opt.parallel import ordered_map
 
 #: ``gate="auto"``: the margin is ``log(T M) + GATE_AUTO_NATS``, so the mass dropped from a (locale,

@@ -1,4 +1,4 @@
-"""Candidate (locale, time, platform) triples for the gated E-step (:mod:`pmht_opt.gating`).
+"""Candidate (locale, time, platform) triples for the gated E-step (:mod:`pmht_opt.estep.gating`).
 
 Two sources, each giving the candidates a block of locales at a time, sorted by locale and then
 platform, so that the gate runs on small arrays whatever the size of the problem:
@@ -19,7 +19,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pmht_opt.likelihood import _UNDERFLOW, EStepInputs, squared_distance
+from pmht_opt.estep.likelihood import _UNDERFLOW, EStepInputs, squared_distance
 
 #: Extra nats on the candidate radius so that rounding in the bound can never lose a kept triple.
 _GATE_SLACK = 1.0

@@ -1,10 +1,10 @@
 """The dense E-step: every (locale, time, platform) triple, a block of locales at a time.
 
-The counterpart of the gated E-step (:mod:`pmht_opt.gating`), for wide ``r`` (early in annealing) and
+The counterpart of the gated E-step (:mod:`pmht_opt.estep.gating`), for wide ``r`` (early in annealing) and
 wherever the gate would keep too much. Each block's weights are formed in a scratch array
-(:meth:`~pmht_opt.likelihood.EStepInputs.dense_blocks`) and reduced while in cache to what the EM loop
+(:meth:`~pmht_opt.estep.likelihood.EStepInputs.dense_blocks`) and reduced while in cache to what the EM loop
 reads: ``W``, ``WZ``, the log-normalisers and each row's statistics. The ``N x T*M`` weights are not
-kept; :class:`~pmht_opt.weights.DenseRows` recomputes them, bit for bit, if something reads them.
+kept; :class:`~pmht_opt.estep.weights.DenseRows` recomputes them, bit for bit, if something reads them.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from pmht_opt.likelihood import EStepInputs
+from pmht_opt.estep.likelihood import EStepInputs
 
 __all__ = ["DenseSums", "estep_dense", "platform_sums"]
 

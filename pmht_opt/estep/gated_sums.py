@@ -1,4 +1,4 @@
-"""The gated E-step's outputs, filled a block of locales at a time (:mod:`pmht_opt.gating`).
+"""The gated E-step's outputs, filled a block of locales at a time (:mod:`pmht_opt.estep.gating`).
 
 A block's gated, normalised weights become columns of the dense layout, their products with the
 locales, each row's platform totals, entry count, largest weight and its column (on any thread); the sums
@@ -13,7 +13,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
-from pmht_opt.likelihood import EStepInputs
+from pmht_opt.estep.likelihood import EStepInputs
 
 #: A gated block: ``(lo, hi, local rows, times, platforms, normalised weights, log-normalisers of rows
 #: lo .. hi - 1)``.

@@ -2,8 +2,9 @@
 docs/model.md sections 4.2-4.3 and 7).
 
 :func:`estep` weighs every locale against every (time, platform) point of the current paths in the log
-domain (:mod:`pmht_opt.likelihood`), densely or, when ``r`` is small, gated (:mod:`pmht_opt.gating`):
-only the triples that can carry weight are evaluated and the weights are a ``scipy.sparse`` CSR matrix
+domain (:mod:`pmht_opt.estep.likelihood`), densely or, when ``r`` is small, gated
+(:mod:`pmht_opt.estep.gating`): only the triples that can carry weight are evaluated and the weights
+are a ``scipy.sparse`` CSR matrix
 with the dense layout. A gated result keeps its inputs, and :meth:`EStepResult.locale_weights` and
 :meth:`EStepResult.weights_ntm` recompute rows exactly as the dense E-step does (bit for bit), dropped
 triples included, so consumers that rank tiny weights (the visit choice of
@@ -18,13 +19,20 @@ import numpy as np
 import scipy.sparse as sp
 
 from pmht_opt import validation
-from pmht_opt.dense import DenseSums, estep_dense
+from pmht_opt.estep.dense import DenseSums, estep_dense
+from pmht_opt.estep.gated_sums import GatedWeights, row_maxima
+from pmht_opt.estep.gating import GATE_MAX_FRACTION, estep_gated, gate_margin, gated_log_normalisers
+from pmht_opt.estep.likelihood import EStepInputs
+from pmht_opt.estep.weights import (
+    SUMMARY_FLOOR,
+    WEIGHTS,
+    DenseRows,
+    EStepSummary,
+    WeightsOnRead,
+    dense_to_csr,
+)
 from pmht_opt.exceptions import ConfigError
-from pmht_opt.gated_sums import GatedWeights, row_maxima
-from pmht_opt.gating import GATE_MAX_FRACTION, estep_gated, gate_margin, gated_log_normalisers
-from pmht_opt.likelihood import EStepInputs
 from pmht_opt.parallel import thread_count
-from pmht_opt.weights import SUMMARY_FLOOR, WEIGHTS, DenseRows, EStepSummary, WeightsOnRead, dense_to_csr
 
 
 @dataclass(kw_only=True)
@@ -39,7 +47,7 @@ class EStepResult:
         (:attr:`gated`), a ``scipy.sparse.csr_matrix`` of the same shape and layout whose missing
         entries are weights below ``exp(-gate)`` of their row's largest (zero). The methods below
         handle both; :meth:`weights_ntm` gives a dense ``(N, T, M)`` array. Either is formed when
-        first read (:mod:`pmht_opt.weights`): a gated E-step's from the blocks' pieces, a dense
+        first read (:mod:`pmht_opt.estep.weights`): a gated E-step's from the blocks' pieces, a dense
         E-step's recomputed from its inputs, bit for bit.
     W
         ``(T, M)``, ``sum_n w[n, t, m]``: the weight of the synthetic measurement.
