@@ -17,13 +17,12 @@ import numpy as np
 
 from pmht_opt import validation
 from pmht_opt.exceptions import ConfigError
+from pmht_opt.geometry.coverage import missed_locales
 from pmht_opt.plotting import (
     AREA_STYLE,
-    COVERAGE_RTOL,
     MISSED_STYLE,
     VIEW_MARGIN,
     draw_constraint,
-    miss_distances,
     platform_colour,
     pyplot,
 )
@@ -101,7 +100,8 @@ def animate_iterations(
             for m in range(M):
                 paths[m].set_data(pos[m, :, 0], pos[m, :, 1])
                 ends[m].set_data([pos[m, -1, 0]], [pos[m, -1, 1]])
-            miss = miss_distances(z, list(pos)) > rho * (1 + COVERAGE_RTOL)
+            miss = np.zeros(z.shape[0], dtype=bool)
+            miss[missed_locales(z, pos, rho)] = True
             missed.set_data(z[miss, 0], z[miss, 1])
             what = "the standing start" if k == 0 else f"after iteration {k} of {last}"
             penalty = f", r = {r[k]:.3g}" if r is not None and k < len(r) and k > 0 else ""

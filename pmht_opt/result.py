@@ -15,12 +15,9 @@ from pmht_opt.constraints.base import Constraint, ConstraintReport
 from pmht_opt.constraints.params import positive_number
 from pmht_opt.estep import EStepSummary
 from pmht_opt.exceptions import ConfigError
-from pmht_opt.geometry import count_crossings, point_polyline_distance
+from pmht_opt.geometry import count_crossings, miss_distances, missed
 from pmht_opt.model import ACC, POS, VEL
 from pmht_opt.scenario import Scenario
-
-#: Relative slack of the coverage test (see :meth:`PlanResult.coverage`).
-COVERAGE_RTOL = 1e-6
 
 
 def excursion(points: np.ndarray, bounds: tuple[float, float, float, float]) -> float:
@@ -157,10 +154,7 @@ class PlanResult:
     def miss_distance(self) -> np.ndarray:
         """``(N,)`` distance from each locale to the nearest path, measured on the segments between
         consecutive positions (docs/model.md section 11)."""
-        pos = self.positions
-        return np.min(
-            [point_polyline_distance(self.scenario.locales, pos[m]) for m in range(pos.shape[0])], axis=0
-        )
+        return miss_distances(self.scenario.locales, self.positions)
 
     def _radius(self, radius: object) -> float:
         if radius is None:
@@ -178,8 +172,7 @@ class PlanResult:
 
     def missed_locales(self, radius: float | None = None) -> np.ndarray:
         """Indices of the locales further than ``radius`` (default: the scenario's) from every path."""
-        rho = self._radius(radius)
-        return np.flatnonzero(self.miss_distance > rho * (1.0 + COVERAGE_RTOL))
+        return missed(self.miss_distance, self._radius(radius))
 
     @cached_property
     def locales_per_platform(self) -> np.ndarray:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pmht_opt.exceptions import ScenarioError
-from pmht_opt.geo import MAX_DISTANCE, GeoOrigin, ecef_to_geodetic, geodetic_to_ecef
+from pmht_opt.geometry.earth import MAX_DISTANCE, GeoOrigin, ecef_to_geodetic, geodetic_to_ecef
 
 #: Origins: mid-latitude south (the example mission), high north, on the equator next to the
 #: antimeridian, near the pole.

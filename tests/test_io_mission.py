@@ -11,7 +11,7 @@ import pytest
 
 import pmht_opt as po
 from pmht_opt.exceptions import ConfigError, PmhtOptError, ScenarioError
-from pmht_opt.geo import GeoOrigin
+from pmht_opt.geometry.earth import GeoOrigin
 from pmht_opt.io import (
     Mission,
     PlannerSettings,

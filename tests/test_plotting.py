@@ -12,10 +12,10 @@ import pytest
 
 import pmht_opt as po
 from pmht_opt.animation import animate_iterations, animate_plan, pick_frames
+from pmht_opt.geometry import miss_distances
 from pmht_opt.plotting import (
     draw_paths,
     figure_formats,
-    miss_distances,
     platform_colour,
     plot_paths,
     plot_result,

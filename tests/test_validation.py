@@ -642,7 +642,7 @@ def test_exports_check_their_path_origin_and_format(tmp_path: Path) -> None:
         res.plot(tmp_path / "f.xyz")
     assert res.plot(tmp_path / "f") == tmp_path / "f.png" and (tmp_path / "f.png").stat().st_size > 0
     with pytest.raises(ScenarioError, match=r"origin\.lat"):
-        po.geo.GeoOrigin(lat=2**2000, lon=0.0)
+        po.geometry.GeoOrigin(lat=2**2000, lon=0.0)
 
 
 def test_contradictory_cvxpy_constraints_are_infeasible_not_a_solver_failure() -> None:

@@ -15,11 +15,11 @@ from pmht_opt.constraints.visits import VisitAll
 from pmht_opt.coverage.search import Candidate, resolve_orderer, search, variants
 from pmht_opt.coverage.tracking import track_routes
 from pmht_opt.exceptions import ConfigError, SolverError
-from pmht_opt.geometry import point_polyline_distance
+from pmht_opt.geometry import missed_locales as missed_by
 from pmht_opt.ordering.pyvrp_ import SEED_MAX
 from pmht_opt.ordering.tour import check_min_tour
 from pmht_opt.planner import PMHTConfig
-from pmht_opt.result import COVERAGE_RTOL, PlanResult
+from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario
 from pmht_opt.validation import MAX_ITERATIONS
 
@@ -120,8 +120,7 @@ def _settings(scenario: Any, radius: Any, config: Any, opts: dict[str, Any]) -> 
 def missed_locales(scenario: Scenario, positions: np.ndarray, radius: float) -> np.ndarray:
     """Locales further than ``radius`` (up to the metric's relative slack) from every path
     ``positions (M, T+1, 2)``, measured on the segments between consecutive positions."""
-    dist = np.min([point_polyline_distance(scenario.locales, p) for p in positions], axis=0)
-    return np.flatnonzero(dist > radius * (1.0 + COVERAGE_RTOL))
+    return missed_by(scenario.locales, positions, radius)
 
 
 def _check(result: PlanResult, radius: float) -> None:

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.exceptions import ScenarioError
-from pmht_opt.geo import GeoOrigin, check_origin
+from pmht_opt.geometry.earth import GeoOrigin, check_origin
 from pmht_opt.model import AX, AY, PX, PY, STATE_DIM, VX, VY
 from pmht_opt.result import check_plan
 from pmht_opt.validation import file_path, writing

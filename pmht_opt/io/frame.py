@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.exceptions import ScenarioError
-from pmht_opt.geo import GeoOrigin
+from pmht_opt.geometry.earth import GeoOrigin
 from pmht_opt.io import fields
 
 #: Decimal places of degrees written to files (1e-9 degrees: 0.1 mm).
@@ -18,9 +18,10 @@ class Frame:
     """Reads and writes a mission file's points.
 
     Without an origin, points are ``[x, y]`` in the scenario's unit and pass through unchanged. With a
-    :class:`~pmht_opt.geo.GeoOrigin`, points in the file are ``[lat, lon]`` in degrees and are
-    projected to east and north metres of the origin's tangent plane (:mod:`pmht_opt.geo`); lengths,
-    boxes (``bounds``, ``area_bounds``) and vectors (velocities) are metres and m/s in that plane.
+    :class:`~pmht_opt.geometry.earth.GeoOrigin`, points in the file are ``[lat, lon]`` in degrees and
+    are projected to east and north metres of the origin's tangent plane
+    (:mod:`pmht_opt.geometry.earth`); lengths, boxes (``bounds``, ``area_bounds``) and vectors
+    (velocities) are metres and m/s in that plane.
     """
 
     def __init__(self, origin: GeoOrigin | None = None) -> None:

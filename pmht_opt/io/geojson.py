@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.exceptions import ScenarioError
-from pmht_opt.geo import GeoOrigin, check_origin
+from pmht_opt.geometry.earth import GeoOrigin, check_origin
 from pmht_opt.io.frame import GEO_DECIMALS
 from pmht_opt.result import check_plan
 from pmht_opt.validation import file_path, writing

@@ -28,7 +28,7 @@ more parts: ``[[constraints]]`` tables (:mod:`pmht_opt.io.constraints`), a ``[pl
 
 With ``[geo]``, every point (``locales``, ``starts``, obstacle centres and vertices, a terminal
 position) is ``[lat, lon]`` in degrees and every length, box (``bounds``, ``area_bounds``), speed
-and acceleration is in metres and seconds in the origin's east-north plane (:mod:`pmht_opt.geo`).
+and acceleration is in metres and seconds in the origin's east-north plane (:mod:`pmht_opt.geometry.earth`).
 Without it, points are ``[x, y]`` in the scenario's unit.
 
 Every value's type is checked before the library sees it (``horizon = "300"`` is an error naming
@@ -48,7 +48,7 @@ from pmht_opt import validation
 from pmht_opt.anneal import Anneal
 from pmht_opt.constraints.base import Constraint, fitting_constraints
 from pmht_opt.exceptions import ConfigError, PmhtOptError, ScenarioError
-from pmht_opt.geo import GeoOrigin, check_origin
+from pmht_opt.geometry.earth import GeoOrigin, check_origin
 from pmht_opt.io import fields
 from pmht_opt.io.constraints import read_constraint, write_constraint
 from pmht_opt.io.frame import Frame

@@ -35,8 +35,8 @@ import numpy as np
 
 from pmht_opt import validation
 from pmht_opt.exceptions import ConfigError, ScenarioError
-from pmht_opt.geo import GeoOrigin, check_origin
 from pmht_opt.geometry import point_polyline_distance
+from pmht_opt.geometry.earth import GeoOrigin, check_origin
 from pmht_opt.io.frame import GEO_DECIMALS
 from pmht_opt.result import check_plan
 from pmht_opt.validation import file_path, writing

@@ -31,13 +31,11 @@ from pmht_opt.plotting.paths import draw_paths
 from pmht_opt.plotting.style import (
     AREA_STYLE,
     BOUNDS_STYLE,
-    COVERAGE_RTOL,
     KEEP_OUT_STYLE,
     MISSED_STYLE,
     RUNAWAY_FRACTION,
     VIEW_MARGIN,
     figure_formats,
-    miss_distances,
     platform_colour,
     pyplot,
 )
@@ -47,7 +45,6 @@ from pmht_opt.validation import file_path, writing
 __all__ = [
     "AREA_STYLE",
     "BOUNDS_STYLE",
-    "COVERAGE_RTOL",
     "KEEP_OUT_STYLE",
     "MISSED_STYLE",
     "RUNAWAY_FRACTION",
@@ -55,7 +52,6 @@ __all__ = [
     "draw_constraint",
     "draw_paths",
     "figure_formats",
-    "miss_distances",
     "platform_colour",
     "plot_paths",
     "plot_result",

@@ -14,8 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from pmht_opt.geometry.coverage import missed_locales as missed_locales_of
 from pmht_opt.plotting.marks import direction_arrows, draw_constraint, end_marker, heading
-from pmht_opt.plotting.style import AREA_STYLE, COVERAGE_RTOL, MISSED_STYLE, miss_distances, platform_colour
+from pmht_opt.plotting.style import AREA_STYLE, MISSED_STYLE, platform_colour
 from pmht_opt.plotting.view import frame, in_grid
 from pmht_opt.scenario import Scenario
 
@@ -144,7 +145,8 @@ def _draw_locales(
     from matplotlib.lines import Line2D
     from matplotlib.patches import Circle
 
-    missed = miss_distances(z, lines) > rho * (1 + COVERAGE_RTOL)
+    missed = np.zeros(z.shape[0], dtype=bool)
+    missed[missed_locales_of(z, lines, rho)] = True
     if show_radius:
         for p in z:
             ax.add_patch(Circle(tuple(p), rho, fill=False, ec="0.6", lw=0.6, ls="--", zorder=1))

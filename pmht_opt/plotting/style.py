@@ -6,12 +6,7 @@ pmht_opt never touches a display.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
-
-import numpy as np
-
-from pmht_opt.geometry import point_polyline_distance
 
 #: How keep-out zones are drawn: hatched grey, under the paths.
 KEEP_OUT_STYLE: dict[str, Any] = {"fc": "0.85", "ec": "0.3", "lw": 0.8, "hatch": "//", "zorder": 0}
@@ -25,8 +20,6 @@ MISSED_STYLE: dict[str, Any] = {"marker": "o", "ms": 9, "mfc": "none", "mec": "r
 RUNAWAY_FRACTION = 0.25
 #: Margin around the area in a clipped view, as a fraction of its size.
 VIEW_MARGIN = 0.08
-#: Relative slack of the coverage test (as :meth:`pmht_opt.PlanResult.coverage`).
-COVERAGE_RTOL = 1e-6
 
 
 def pyplot() -> Any:
@@ -50,11 +43,3 @@ def figure_formats() -> set[str]:
 def platform_colour(m: int) -> str:
     """The colour of platform ``m`` in every figure (matplotlib's default cycle)."""
     return f"C{m % 10}"
-
-
-def miss_distances(locales: np.ndarray, lines: Sequence[np.ndarray]) -> np.ndarray:
-    """``(N,)`` distance of each locale to the nearest of ``lines`` (polylines ``(K, 2)``), measured
-    on their segments (docs/model.md section 11)."""
-    if not lines:
-        return np.full(locales.shape[0], np.inf)
-    return np.min([point_polyline_distance(locales, np.asarray(line, dtype=float)) for line in lines], axis=0)
