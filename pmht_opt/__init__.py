@@ -1,6 +1,8 @@
 """pmht-opt: multi-platform path planning with the PMHT, its M-step posed as a sparse convex QP.
 
-Public names are re-exported here; see README.md for an overview.
+The one way in is :func:`plan` (``plan(scenario, method="coverage" | "smoothed" | "pmht", ...)``) and,
+for visiting orders alone, :func:`order_locales`. Public names are re-exported here; see README.md for
+an overview.
 """
 
 from pmht_opt.anneal import Anneal
@@ -17,13 +19,13 @@ from pmht_opt.constraints import (
     Terminal,
     VisitAll,
 )
-from pmht_opt.coverage import plan_coverage
 from pmht_opt.em import EMCallbacks, EMRun, IterationRecord
 from pmht_opt.estep import EStepSummary
 from pmht_opt.exceptions import (
     ConfigError,
     InfeasibleError,
     MissingDependencyError,
+    PlanWarning,
     PmhtOptError,
     ScenarioError,
     SolverError,
@@ -33,11 +35,12 @@ from pmht_opt.exceptions import (
 from pmht_opt.model import MotionModel
 from pmht_opt.mstep import available_backends, solve_mstep
 from pmht_opt.ordering import TourResult, order_locales, solve_ga_tsp, solve_ortools, tour_distance
-from pmht_opt.planner import PMHTConfig, plan_pmht
+from pmht_opt.planners import PLANNERS, plan, plan_pmht, plan_smoothed
+from pmht_opt.planners.coverage import plan_coverage
 from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario, paper_scenario
 from pmht_opt.schedule import Schedule
-from pmht_opt.smoothed import plan_smoothed
+from pmht_opt.settings import PMHTConfig, PMHTOptions, Settings
 from pmht_opt.stopping import (
     AnyOf,
     Converged,
@@ -53,6 +56,7 @@ from pmht_opt.stopping import (
 __version__ = "0.1.0"
 
 __all__ = [
+    "PLANNERS",
     "AccelLimit",
     "Anneal",
     "AnyOf",
@@ -76,13 +80,16 @@ __all__ = [
     "NoImprovement",
     "ObjectiveTolerance",
     "PMHTConfig",
+    "PMHTOptions",
     "PlanResult",
+    "PlanWarning",
     "PmhtOptError",
     "PolygonObstacle",
     "Progress",
     "Scenario",
     "ScenarioError",
     "Schedule",
+    "Settings",
     "SolverError",
     "SpeedLimit",
     "StayNear",
@@ -97,6 +104,7 @@ __all__ = [
     "available_backends",
     "order_locales",
     "paper_scenario",
+    "plan",
     "plan_coverage",
     "plan_pmht",
     "plan_smoothed",

@@ -34,8 +34,9 @@ class Anneal:
     Parameters
     ----------
     start
-        ``r`` of the first iteration (absolute, in squared distance units; the scenario's ``r`` is 0.01
-        in the paper's scenarios); above the scenario's ``r``, within ``[1e-10, 1e12]``.
+        ``r`` of the first iteration, in squared distance units, above the scenario's ``r`` and within
+        ``[1e-10, 1e12]``; ``None`` (the default) is :data:`START_FACTOR` times the scenario's ``r``
+        (1.0 for the paper's ``r = 0.01``), so the schedule follows the scenario's units.
     iterations
         Length ``n`` of the schedule: iterations ``1..n`` anneal, iteration ``n`` already uses the
         scenario's ``r``. ``0`` is no annealing (plain EM).
@@ -48,7 +49,7 @@ class Anneal:
         scenario's ``r`` or is replaced by it. See :meth:`custom`.
     """
 
-    start: float = 1.0
+    start: float | None = None
     iterations: int | None = 30
     shape: str = "geometric"
     fn: Callable[[int], float] | None = None
@@ -61,8 +62,8 @@ class Anneal:
             limit = validation.MAX_ITERATIONS
             iterations = validation.integer("anneal.iterations", self.iterations, ConfigError, 0, limit)
             object.__setattr__(self, "iterations", iterations)
-        _check_r("anneal.start", self.start)
-        object.__setattr__(self, "start", float(self.start))
+        if self.start is not None:
+            object.__setattr__(self, "start", _check_r("anneal.start", self.start))
         if self.shape not in SHAPES:
             raise ConfigError(f"anneal.shape: expected one of {', '.join(SHAPES)}, got {self.shape!r}.")
         if self.fn is not None and not callable(self.fn):
@@ -97,12 +98,13 @@ class Anneal:
         n = max_iter if self.iterations is None else min(self.iterations, max_iter)
         if n == 0:
             return out
-        if self.fn is None and self.start <= r:
+        start = self.start_for(r)
+        if self.fn is None and start <= r:
             raise ConfigError(
-                f"anneal.start: the schedule starts at r = {self.start:g}, not above the scenario's "
+                f"anneal.start: the schedule starts at r = {start:g}, not above the scenario's "
                 f"r = {r:g}; annealing starts wide and shrinks to r (docs/model.md section 6): give a "
-                f"start above r (e.g. {100 * r:g}, 100 r as the default is for the paper's r = 0.01) "
-                "or anneal=None."
+                f"start above r (e.g. {START_FACTOR * r:g}, as the default does), leave it out, or "
+                "use anneal=None."
             )
         if self.fn is not None:
             for i in range(1, n + 1):
@@ -124,20 +126,56 @@ class Anneal:
         assert self.iterations is not None
         steps = np.arange(self.iterations, dtype=float) / max(self.iterations - 1, 1)
         if self.shape == "geometric":
-            full = self.start * (r / self.start) ** steps
+            full = start * (r / start) ** steps
         else:
-            full = self.start + (r - self.start) * steps
+            full = start + (r - start) * steps
         full[-1] = r
         out[:n] = full[:n]
         return out
 
-    def describe(self) -> str:
-        """A short human-readable description."""
+    def start_for(self, r: float) -> float:
+        """The first iteration's ``r`` for a scenario whose penalty is ``r``."""
+        return START_FACTOR * r if self.start is None else self.start
+
+    def fit(self, max_iter: int) -> tuple[Anneal, str]:
+        """This schedule fitted into a run of at most ``max_iter`` iterations, and a note saying how.
+
+        A schedule longer than the run would leave its plan fitted at a wider penalty than the
+        scenario's ``r``. It is compressed to the same share of the run as the default schedule has of
+        the default run (:data:`FIT_SHARE`: 30 of 100 iterations), at least one iteration; the note
+        says so (and is empty when the schedule fits). A callable schedule cannot be compressed:
+        :class:`ConfigError`, before the run starts.
+        """
+        n = self.iterations
+        if n is None or n <= max_iter:
+            return self, ""
+        if self.fn is not None:
+            raise ConfigError(
+                f"anneal: the custom schedule takes {n} iterations but the run may take only {max_iter}, "
+                f"so its plan would not be fitted at the scenario's r; give a schedule of at most "
+                f"{max_iter} iterations or a longer run."
+            )
+        short = max(1, round(FIT_SHARE * max_iter))
+        fitted = Anneal(start=self.start, iterations=short, shape=self.shape)
+        return fitted, f"compressed from {n} to {short} iterations to fit a run of {max_iter}"
+
+    def describe(self, r: float | None = None) -> str:
+        """A short human-readable description (with the start in numbers if ``r`` is given)."""
         if self.empty:
             return "none"
         if self.fn is not None:
             return "custom" if self.iterations is None else f"custom over {self.iterations} iterations"
-        return f"{self.shape} from r={self.start:g} over {self.iterations} iterations"
+        if self.start is None and r is None:
+            origin = f"{START_FACTOR:g} r"
+        else:
+            origin = f"r={self.start_for(r if r is not None else 0.0):g}"
+        return f"{self.shape} from {origin} over {self.iterations} iterations"
+
+
+#: The default schedule starts at this multiple of the scenario's ``r``.
+START_FACTOR = 100.0
+#: A schedule longer than its run is compressed to this share of the run (the default's 30 of 100).
+FIT_SHARE = 0.3
 
 
 def _check_r(name: str, value: object) -> float:

@@ -28,11 +28,11 @@ from pmht_opt.model import POS
 from pmht_opt.mstep.base import MStepData, MStepOutput
 from pmht_opt.mstep.registry import make_mstep, resolve
 from pmht_opt.parallel import block_threads, concurrent, usable_cores
-from pmht_opt.planner import PMHTConfig
 from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario
 from pmht_opt.schedule import Schedule
-from pmht_opt.stopping import Converged, EMProgress, ObjectiveTolerance
+from pmht_opt.settings import PMHTConfig
+from pmht_opt.stopping import AnyOf, Converged, EMProgress, ObjectiveTolerance, fired, iteration_limit
 from pmht_opt.verify import verify_plan
 
 
@@ -165,7 +165,12 @@ class EMRun:
         for con in cfg.constraints:
             con.check_scenario(scenario)
         check_feasible(scenario, cfg.constraints)
-        self.schedule = Schedule.of(cfg.anneal, scenario.r, cfg.max_iter)
+        # The schedule fits the iterations the run may take: its plan is fitted at the scenario's r.
+        limit = min(cfg.max_iter, iteration_limit(AnyOf(cfg.stop)) or cfg.max_iter)
+        anneal, note = cfg.anneal.fit(limit)
+        self.schedule = Schedule.of(anneal, scenario.r, cfg.max_iter)
+        #: The annealing schedule the run uses, described (and whether it was compressed to fit).
+        self.anneal = anneal.describe(scenario.r) + (f" ({note})" if note else "")
         self.criteria = cfg.criteria()
         # "auto" gates only where the gated EM is the dense one to rounding: not with the time-prior update.
         auto_off = cfg.estep_gate == "auto" and cfg.update_time_prior
@@ -182,6 +187,8 @@ class EMRun:
         self.iteration = 0
         self.last_context: ConstraintContext | None = None
         self.stop_reason: str | None = None
+        #: What the stopping criteria saw after the last iteration (``None`` before the first).
+        self.progress: EMProgress | None = None
         self.records: list[IterationRecord] = []
         self.snapshots: dict[int, np.ndarray] = {}
         if 0 in cfg.snapshots:
@@ -343,25 +350,28 @@ class EMRun:
         self.records.append(record)
         if it in cfg.snapshots:
             self.snapshots[it] = self.states[:, :, POS].copy()
+        self.progress = self._progress(it)
         self._notify(self.callbacks.after_iteration, record)
-        self._judge(it)
+        for crit in self.criteria:
+            reason = validation.call_user(fired, crit, self.progress)
+            if reason is not None:
+                self.stop_reason = reason
+                break
         return record
 
-    def _judge(self, it: int) -> None:
+    def _progress(self, it: int) -> EMProgress:
+        """What the stopping criteria and observers see after iteration ``it``."""
         bounds = self.scenario.bounds or (0.0, 1.0, 0.0, 1.0)
-        progress = EMProgress(
+        return EMProgress(
             iteration=it,
             scores=[-o for o in self._objectives],
             elapsed=time.perf_counter() - self._started,
             settled=self.schedule.settled_at(self.config.constraints, it),
+            stage="em",
             path_change=self.records[-1].path_change,
             assignment_age=self._assignment_age,
             scale=max(bounds[1] - bounds[0], bounds[3] - bounds[2], 1e-12),
         )
-        for crit in self.criteria:
-            if validation.call_user(crit, progress):
-                self.stop_reason = type(crit).__name__
-                return
 
     def run(self) -> PlanResult:
         """Step until the stopping criterion says stop; return the plan."""
@@ -390,6 +400,7 @@ class EMRun:
             mstep_status=tuple(r.mstep_status for r in recs),
             estep_gated=np.array([gated0, *(r.estep_gated for r in recs)], dtype=bool),
             stop_reason=self.stop_reason or "",
+            anneal=self.anneal,
         )
 
     @validation.plan_boundary("the plan's result")
@@ -427,7 +438,7 @@ class EMRun:
             constraints=tuple(cfg.constraints),
             reports=reports,
             estep=es.summary(),
-            anneal=cfg.anneal.describe(),
+            anneal=self.anneal,
         )
 
     def close(self) -> None:

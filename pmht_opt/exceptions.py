@@ -48,3 +48,9 @@ class InfeasibleError(SolverError):
 
 class MissingDependencyError(PmhtOptError, ImportError):
     """An optional feature whose package is not installed; the message names the extra to install."""
+
+
+class PlanWarning(UserWarning):
+    """A plan that is returned, but not quite as asked: for example fitted at another penalty than the
+    scenario's ``r``, because a criterion other than the iteration limit stopped its run during
+    annealing. The result's history holds the details."""

@@ -46,7 +46,8 @@ class IterationHistory:
     fast settings and was solved by one of its retry settings (:mod:`pmht_opt.mstep.tuning`);
     ``mstep_status[i]`` is that M-step's status; ``estep_gated[i]`` says whether the E-step after
     iteration ``i`` (``0``: the initial one) was gated. ``stop_reason`` names the stopping criterion
-    that ended the run.
+    that ended the run; ``anneal`` describes the schedule of ``r`` the run used, and says whether it
+    was compressed to fit the run's iterations.
     """
 
     objective: np.ndarray
@@ -58,6 +59,13 @@ class IterationHistory:
     mstep_status: tuple[solvers.Status, ...] = ()
     estep_gated: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     stop_reason: str = ""
+    anneal: str = "none"
+
+    @property
+    def fitted_r(self) -> float:
+        """The penalty ``r`` the returned paths were fitted at (the last iteration's): the scenario's
+        ``r`` unless a criterion other than the iteration limit stopped the run during annealing."""
+        return float(self.r[-1]) if self.r.size else float("nan")
 
     @property
     def settled(self) -> int:

@@ -1,4 +1,10 @@
-"""Stopping criteria for the iterative methods: the EM planner and the GA ordering.
+"""When iterative methods stop, and what they report after every iteration.
+
+Every iterative method of the package (the PMHT planner's EM, the smoothed and coverage planners, the
+orderings that iterate) reports after each of its iterations with one kind of record,
+:class:`Progress` (the EM's :class:`EMProgress` adds what only it knows), and asks the same stopping
+criteria, passed in as ``stop=`` (:func:`pmht_opt.plan`, :func:`pmht_opt.order_locales`). A callback
+``callback(progress)`` receives the same record.
 
 A criterion is any callable ``criterion(progress) -> bool`` that says whether to stop after the
 iteration ``progress`` describes. Criteria are small frozen dataclasses, passed in rather than hard-wired,
@@ -12,7 +18,7 @@ objective.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
@@ -35,12 +41,15 @@ class Progress:
         Whether the method is in its final regime (the EM: annealing over and every constraint
         imposed; always true for methods without such phases). Convergence tests only count settled
         iterations.
+    stage
+        What is iterating: ``"em"``, ``"search"`` (a tour search), ``"ordering"``, ...
     """
 
     iteration: int
     scores: Sequence[float]
     elapsed: float = 0.0
     settled: bool = True
+    stage: str = ""
 
 
 @dataclass(frozen=True)
@@ -195,6 +204,47 @@ class AnyOf:
 
     def __call__(self, progress: Progress) -> bool:
         return any(c(progress) for c in self.criteria)
+
+
+def as_criterion(stop: object, field: str = "stop") -> StoppingCriterion:
+    """``stop`` as one criterion: a criterion, or a sequence of them (any of which stops the run).
+
+    Raises :class:`ConfigError` naming ``field`` for anything else.
+    """
+    if callable(stop):
+        return stop
+    if isinstance(stop, (list, tuple)):
+        for c in stop:
+            if not callable(c):
+                raise ConfigError(f"{field}: expected stopping criteria, got {type(c).__name__}.")
+        return AnyOf(tuple(stop))
+    raise ConfigError(
+        f"{field}: expected a stopping criterion such as MaxIterations(50), or a list of them, "
+        f"got {type(stop).__name__}."
+    )
+
+
+#: ``callback(progress)``: what every iterative method calls after each iteration.
+ProgressObserver = Callable[[Progress], object]
+
+
+def check_callback(callback: object, field: str = "callback") -> ProgressObserver | None:
+    """``callback`` if it is ``None`` or callable, else :class:`ConfigError` naming ``field``."""
+    if callback is not None and not callable(callback):
+        raise ConfigError(f"{field}: expected a callable(progress), got {type(callback).__name__}.")
+    return callback
+
+
+def fired(criterion: StoppingCriterion, progress: Progress) -> str | None:
+    """The name of the criterion inside ``criterion`` that says stop after ``progress`` (the first,
+    looking inside :class:`AnyOf`), or ``None`` if none does."""
+    if isinstance(criterion, AnyOf):
+        for c in criterion.criteria:
+            name = fired(c, progress)
+            if name is not None:
+                return name
+        return None
+    return type(criterion).__name__ if criterion(progress) else None
 
 
 def iteration_limit(criterion: StoppingCriterion) -> int | None:

@@ -19,8 +19,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from pmht_opt.anneal import Anneal
-from pmht_opt.planner import PMHTConfig, plan_pmht
+from pmht_opt.planners.pmht import plan_pmht
 from pmht_opt.scenario import paper_scenario
+from pmht_opt.settings import PMHTConfig
 from studies.options import Choices, Count, StudyOptions, option
 from studies.report import EXCURSION_LIMIT, Columns, frame, markdown_table, summarise
 from studies.trials import Check, TrialTable

@@ -25,9 +25,9 @@ from pmht_opt.em import EMCallbacks, EMRun, IterationRecord
 from pmht_opt.geometry import point_polyline_distance
 from pmht_opt.model import POS
 from pmht_opt.ordering import order_locales
-from pmht_opt.planner import PMHTConfig
+from pmht_opt.planners.smoothed import plan_smoothed
 from pmht_opt.scenario import paper_scenario
-from pmht_opt.smoothed import plan_smoothed
+from pmht_opt.settings import PMHTConfig
 from studies.options import Choices, Count, StudyOptions, option
 from studies.report import Columns, frame, markdown_table
 from studies.trials import Check, TrialTable

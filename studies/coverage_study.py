@@ -32,14 +32,15 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.constraints import VisitAll
-from pmht_opt.coverage import plan_coverage
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.ordering import METHODS as ORDERINGS
 from pmht_opt.ordering import order_locales
-from pmht_opt.planner import PMHTConfig, plan_pmht
+from pmht_opt.planners.coverage import plan_coverage
+from pmht_opt.planners.pmht import plan_pmht
+from pmht_opt.planners.smoothed import plan_smoothed
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario, paper_scenario
-from pmht_opt.smoothed import plan_smoothed
+from pmht_opt.settings import PMHTConfig
 from studies.options import Choices, Count, Positives, RunOptions, StudyOptions, option
 from studies.report import Columns, frame, markdown_table, summarise
 from studies.trials import CONSTRAINED, TIME_CHECKS, TIME_COLUMNS, TrialTable

@@ -40,9 +40,10 @@ import numpy as np
 
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.ordering import TourResult
-from pmht_opt.planner import PMHTConfig, plan_pmht
+from pmht_opt.planners.pmht import plan_pmht
 from pmht_opt.result import PlanResult, excursion
 from pmht_opt.scenario import Scenario, paper_scenario
+from pmht_opt.settings import PMHTConfig
 from studies.options import Choices, Count, RunOptions, StudyOptions, Without, option
 from studies.report import EXCURSION_LIMIT, Columns, frame, markdown_table, summarise
 from studies.trials import CONSTRAINED, ROUNDED_PATHS, TIME_CHECKS, TIME_COLUMNS, TrialTable
@@ -85,7 +86,7 @@ def _order(sc: Scenario, method: str, seed: int) -> TourResult:
 def _plan(sc: Scenario, method: str, seed: int, snapshots: tuple[int, ...] = ()) -> PlanResult | TourResult:
     """The plan (``PlanResult``) or tour (``TourResult``) of ``method`` on ``sc``."""
     from pmht_opt.constraints import VisitAll
-    from pmht_opt.smoothed import plan_smoothed
+    from pmht_opt.planners.smoothed import plan_smoothed
 
     if method in {"ga", "ga-improved", "ortools"}:
         return _order(sc, method, seed)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import pmht_opt as po
-from pmht_opt.coverage import CoverageProgress, missed_locales
+from pmht_opt.planners.coverage import CoverageProgress, missed_locales
 
 HAS_ORTOOLS = importlib.util.find_spec("ortools") is not None
 
@@ -190,7 +190,7 @@ def test_not_a_scenario() -> None:
 
 
 def test_a_plan_that_fails_the_check_is_never_returned(monkeypatch: pytest.MonkeyPatch) -> None:
-    import pmht_opt.coverage.planner as planner
+    import pmht_opt.planners.coverage.planner as planner
 
     monkeypatch.setattr(planner, "missed_locales", lambda scenario, positions, radius: np.array([3]))
     with pytest.raises(po.SolverError, match=r"locales \[3\]"):

@@ -15,7 +15,7 @@ from pmht_opt import (
     paper_scenario,
     plan_smoothed,
 )
-from pmht_opt.smoothed import sub_batches
+from pmht_opt.planners.smoothed import sub_batches
 
 ITERATIONS = {"clarabel": 8, "osqp": 4, "cvxpy": 8}
 #: OSQP's first solve with the visit rows takes thousands of ADMM iterations: it plans the same tours

@@ -17,14 +17,29 @@ from typing import Any
 from pmht_opt.cli.outputs import Outputs, check_output, figure_formats, write_text
 from pmht_opt.cli.settings import mission_of, planner_settings
 from pmht_opt.exceptions import ConfigError, MissingDependencyError
-from pmht_opt.io import EXAMPLES, Mission, example_path, order_mission, plan_mission
+from pmht_opt.io import EXAMPLES, Mission, PlannerSettings, example_path, plan_mission
 from pmht_opt.mstep import BACKENDS, available_backends
-from pmht_opt.ordering import TourResult
+from pmht_opt.ordering import TourResult, order_locales
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import paper_scenario
+from pmht_opt.stopping import Progress
+
+#: Planners whose EM iterations ``--animate`` can show.
+ANIMATED = ("pmht", "smoothed")
+#: Iterations of each planner's run when the mission does not say (for the progress bar).
+DEFAULT_ITERATIONS = {"pmht": 100, "smoothed": 100}
+#: The planner of ``pmht-opt demo``.
+DEMO_METHOD = "pmht"
+#: The ``order`` command's options of the ordering: ``option -> option of the method``.
+ORDER_OPTIONS = (
+    ("seed", "seed"),
+    ("time_limit", "time_limit"),
+    ("min_tour", "min_tour"),
+    ("ordering_iterations", "iterations"),
+)
 
 
-def _progress_bar(total: int, label: str, quiet: bool) -> Any:
+def _progress_bar(total: int | None, label: str, quiet: bool) -> Any:
     """A tqdm bar on stderr when tqdm is installed (the ``studies`` extra) and wanted; else ``None``."""
     if quiet:
         return None
@@ -48,13 +63,20 @@ def plan(mission: Mission, outputs: Outputs, args: argparse.Namespace) -> PlanRe
             "bounds: none given; assumed the locales' bounding box "
             f"[{b[0]:.6g}, {b[1]:.6g}, {b[2]:.6g}, {b[3]:.6g}]"
         )
-    snapshots = tuple(range(s.iterations + 1)) if outputs.animation is not None else ()
-    label = {"pmht": "PMHT"}.get(s.kind, s.kind)
-    bar = _progress_bar(s.iterations, f"{label} ({s.solver})", args.quiet)
+    if outputs.animation is not None and s.method not in ANIMATED:
+        raise ConfigError(
+            f"--animate: the {s.method} planner has no EM iterations to animate; it applies to "
+            f"{' and '.join(ANIMATED)}."
+        )
+    total = s.iterations if s.iterations is not None else DEFAULT_ITERATIONS.get(s.method)
+    snapshots = tuple(range(total + 1)) if outputs.animation is not None and total else ()
+    solver = s.shared.get("solver", "auto")
+    bar = _progress_bar(total, f"{s.method} ({solver})", args.quiet)
 
-    def progress(iteration: int, objective: float) -> None:
+    def progress(p: Progress) -> None:
         if bar is not None:
-            bar.set_postfix_str(f"objective {objective:.6g}", refresh=False)
+            score = p.scores[-1] if len(p.scores) else float("nan")
+            bar.set_postfix_str(f"{p.stage} {score:.6g}", refresh=False)
             bar.update(1)
 
     try:
@@ -76,7 +98,7 @@ def report(result: PlanResult, mission: Mission) -> None:
     rows = [
         ("scenario", sc.name or "-"),
         ("platforms / locales / horizon", f"{sc.n_platforms} / {sc.n_locales} / {sc.horizon} x {sc.dt:g} s"),
-        ("planner", f"{mission.planner.kind}, solver {m['solver']}"),
+        ("planner", f"{mission.planner.method}, solver {m['solver']}"),
         ("constraints", ", ".join(c.name for c in result.constraints) or "-"),
         ("iterations", f"{m['iterations']}" + (" (converged)" if m["converged"] else "")),
         ("annealing", m["anneal"]),
@@ -109,7 +131,7 @@ def demo(args: argparse.Namespace) -> int:
     """``pmht-opt demo``: one of the paper's scenarios."""
     scenario = paper_scenario(args.scenario, seed=args.seed)
     mission = Mission(scenario)
-    mission.planner = planner_settings(args, mission.planner)
+    mission.planner = planner_settings(args, PlannerSettings(method=DEMO_METHOD))
     outputs = Outputs.of(args, mission, Path(f"pmht-demo-{args.scenario}.png"))
     plan(mission, outputs, args)
     return 0
@@ -128,7 +150,7 @@ def order(args: argparse.Namespace) -> int:
     mission = mission_of(args)
     figure = check_output("--out", args.out, figure_formats(), "figure") if args.out else None
     js = check_output("--json", args.json, {".json"}, "tour") if args.json else None
-    tour: TourResult = order_mission(mission)
+    tour: TourResult = _order(mission, args)
     sc = mission.scenario
     u = " m" if mission.origin is not None else ""
     print(f"ordering        {tour.method}" + (" (closed routes)" if mission.planner.return_to_base else ""))
@@ -142,6 +164,23 @@ def order(args: argparse.Namespace) -> int:
         write_text(js, json.dumps(tour.to_dict()) + "\n")
         print(f"tour: {js}")
     return 0
+
+
+def _order(mission: Mission, args: argparse.Namespace) -> TourResult:
+    """The mission's ordering with the ``order`` command's options over the file's."""
+    s = mission.planner
+    method = args.method or s.options.get("orderer", "pyvrp")
+    same = method == s.options.get("orderer", "pyvrp")
+    options: dict[str, Any] = dict(s.options.get("order_options", {})) if same else {}
+    if method in ("ga", "pyvrp") and "seed" in s.shared:
+        options.setdefault("seed", s.shared["seed"])
+    for option, key in ORDER_OPTIONS:
+        value = getattr(args, option, None)
+        if value is not None:
+            options[key] = value
+    if s.return_to_base:
+        options["closed"] = True
+    return order_locales(mission.scenario, method, **options)
 
 
 def example(args: argparse.Namespace) -> int:

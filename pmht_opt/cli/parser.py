@@ -12,13 +12,13 @@ from pathlib import Path
 from typing import Any
 
 from pmht_opt.cli import commands
-from pmht_opt.io import EXAMPLES, PlannerSettings
+from pmht_opt.io import EXAMPLES
 from pmht_opt.io.mission import DEFAULT_ALTITUDE
-from pmht_opt.io.settings import ORDERINGS, PLANNERS
+from pmht_opt.io.settings import DEFAULT_METHOD
 from pmht_opt.mstep import BACKENDS
+from pmht_opt.ordering import METHODS as ORDERINGS
+from pmht_opt.planners import PLANNERS
 
-#: The library's planner defaults, shown in --help.
-DEFAULTS = PlannerSettings()
 #: What ``add_subparsers`` returns (argparse names the class privately).
 Subparsers = argparse._SubParsersAction
 
@@ -41,7 +41,10 @@ def _add_planner_options(p: argparse.ArgumentParser, mission: bool) -> None:
     """Options of the EM planner; for a mission they override its ``[planner]`` table."""
     if mission:
         p.add_argument(
-            "--planner", choices=PLANNERS, default=None, help=f"planner {_fallback('kind', DEFAULTS.kind)}"
+            "--planner",
+            choices=list(PLANNERS),
+            default=None,
+            help=f"planner {_fallback('method', DEFAULT_METHOD)}",
         )
     say: Callable[[str, Any], str] = _fallback if mission else (lambda key, value: f"(default: {value})")
     p.add_argument(
@@ -49,16 +52,19 @@ def _add_planner_options(p: argparse.ArgumentParser, mission: bool) -> None:
         default=None,
         choices=["auto", *sorted(BACKENDS)],
         help="M-step backend; auto: banded without constraints, clarabel with them "
-        f"{say('solver', DEFAULTS.solver)}",
+        f"{say('solver', 'auto')}",
     )
     p.add_argument(
-        "--iterations", type=int, default=None, help=f"EM iterations {say('iterations', DEFAULTS.iterations)}"
+        "--iterations",
+        type=int,
+        default=None,
+        help="iterations of the planner's run at most " + say("iterations", "the planner's own stop"),
     )
     p.add_argument(
         "--tol",
         type=float,
         default=None,
-        help=f"relative objective change to stop at, 0: never {say('tol', DEFAULTS.tol)}",
+        help=f"pmht: relative objective change to stop at, 0: never {say('tol', 0)}",
     )
     anneal = p.add_mutually_exclusive_group()
     anneal.add_argument(
@@ -66,19 +72,30 @@ def _add_planner_options(p: argparse.ArgumentParser, mission: bool) -> None:
         nargs=2,
         metavar=("START", "ITERATIONS"),
         default=None,
-        help=f"anneal r geometrically from START over the first ITERATIONS iterations "
-        f"{say('anneal', DEFAULTS.schedule().describe())}",
+        help="pmht: anneal r geometrically from START over the first ITERATIONS iterations "
+        f"{say('anneal', 'geometric from 100 r over 30 iterations')}",
     )
     anneal.add_argument("--no-anneal", action="store_true", help="plain EM: the scenario's r from the start")
     p.add_argument(
         "--update-time-prior",
         action="store_true",
         default=None,
-        help="re-estimate the time prior each iteration (the paper's literal setting)",
+        help="pmht: re-estimate the time prior each iteration (the paper's literal setting)",
     )
     p.add_argument(
-        "--paper", action="store_true", default=None, help="the paper's settings (PMHTConfig.paper())"
+        "--paper", action="store_true", default=None, help="pmht: the paper's settings (PMHTOptions.paper())"
     )
+    p.add_argument(
+        "--radius",
+        type=float,
+        default=None,
+        help="coverage: the sensor radius every locale must be within; smoothed: the visit radius "
+        "(default: the mission's coverage_radius)",
+    )
+    if mission:  # demo's --seed is the scenario's
+        p.add_argument(
+            "--seed", type=int, default=None, help="seed of the planner's random choices (default: 0)"
+        )
 
 
 def _add_output_options(p: argparse.ArgumentParser, default_figure: str | None) -> None:
@@ -136,12 +153,9 @@ def _add_plan(sub: Subparsers[argparse.ArgumentParser]) -> None:
     _add_planner_options(plan, mission=True)
     plan.add_argument(
         "--ordering",
-        choices=ORDERINGS,
+        choices=sorted(ORDERINGS),
         default=None,
-        help=f"the smoothed planner's ordering {_fallback('ordering', DEFAULTS.method)}",
-    )
-    plan.add_argument(
-        "--seed", type=int, default=None, help="the ordering's seed (ga, pyvrp) (default: the method's)"
+        help=f"the smoothed planner's ordering {_fallback('orderer', 'pyvrp')}",
     )
     _add_output_options(plan, None)
     plan.add_argument(
@@ -165,9 +179,9 @@ def _add_order(sub: Subparsers[argparse.ArgumentParser]) -> None:
     _add_mission_source(order)
     order.add_argument(
         "--method",
-        choices=ORDERINGS,
+        choices=sorted(ORDERINGS),
         default=None,
-        help=f"ordering method {_fallback('ordering', DEFAULTS.method)}",
+        help=f"ordering method {_fallback('orderer', 'pyvrp')}",
     )
     order.add_argument("--seed", type=int, default=None, help="seed (ga, pyvrp) (default: the method's)")
     order.add_argument(

@@ -2,7 +2,9 @@
 
 A mission file states its own ``[planner]`` settings; the options given on the command line override
 them one by one, so ``pmht-opt plan mission.toml --iterations 20`` changes the iterations and nothing
-else.
+else. ``--planner`` switches the planner: the file's options of the planner it replaces are dropped
+(they belong to that planner), while an option given on the command line that the chosen planner
+does not take is refused, naming the flag.
 """
 
 from __future__ import annotations
@@ -13,37 +15,66 @@ from typing import Any
 from pmht_opt.anneal import Anneal
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.io import Mission, PlannerSettings, example_path, load_mission
+from pmht_opt.planners import PLANNERS
 
-#: The options that replace a setting of the same meaning: ``option -> setting``.
-REPLACED = (("planner", "kind"), ("solver", "solver"), ("iterations", "iterations"), ("tol", "tol"))
-#: The switches that turn a setting on.
-SWITCHES = ("update_time_prior", "paper", "return_to_base")
-#: The options of the ordering: ``option -> key of PlannerSettings.ordering``.
-ORDERING = (
-    ("seed", "seed"),
-    ("time_limit", "time_limit"),
-    ("min_tour", "min_tour"),
-    ("ordering_iterations", "iterations"),
-)
+#: Options that set a key of the mission's own: ``option -> key``.
+MISSION = (("planner", "method"), ("iterations", "iterations"), ("tol", "tol"))
+#: Switches that turn a mission key on.
+SWITCHES = ("paper", "return_to_base")
+#: Options that set a shared setting: ``option -> Settings field``.
+SHARED = (("solver", "solver"), ("seed", "seed"))
+#: Options that set one of the planner's own options: ``option -> {planner: option name}``.
+OWN: dict[str, dict[str, str]] = {
+    "radius": {"coverage": "radius", "smoothed": "visit_radius"},
+    "ordering": {"smoothed": "orderer"},
+    "update_time_prior": {"pmht": "update_time_prior"},
+    "anneal": {"pmht": "anneal"},
+}
 
 
 def planner_settings(args: argparse.Namespace, base: PlannerSettings) -> PlannerSettings:
-    """``base`` with the options given on the command line."""
+    """``base`` with the options given on the command line (module notes)."""
     changes: dict[str, Any] = {}
-    for option, key in REPLACED:
+    for option, key in MISSION:
         value = getattr(args, option, None)
         if value is not None:
             changes[key] = value
     for option in SWITCHES:
         if getattr(args, option, None):
             changes[option] = True
+    method = changes.get("method", base.method)
+    shared = dict(base.shared)
+    for option, key in SHARED:
+        value = getattr(args, option, None)
+        if value is not None:
+            shared[key] = value
+    takes = set(PLANNERS[method].option_names())
+    options = {k: v for k, v in base.options.items() if k in takes}
+    for option, value in _own(args).items():
+        name = OWN[option].get(method)
+        if name is None:
+            flag = "--" + option.replace("_", "-")
+            owners = ", ".join(OWN[option])
+            raise ConfigError(f"{flag}: an option of the {owners} planner, not of {method!r}.")
+        options[name] = value
+    if method != "pmht":  # the file's EM settings belong to the planner replaced
+        for key, default in (("tol", 0.0), ("paper", False)):
+            changes.setdefault(key, default)
+    return base.replace(**changes, shared=shared, options=options)
+
+
+def _own(args: argparse.Namespace) -> dict[str, Any]:
+    """The planners' own options given on the command line, by option name."""
+    out: dict[str, Any] = {}
+    for option in ("radius", "ordering"):
+        if getattr(args, option, None) is not None:
+            out[option] = getattr(args, option)
+    if getattr(args, "update_time_prior", None):
+        out["update_time_prior"] = True
     anneal = _anneal(args)
     if anneal is not None:
-        changes["anneal"] = anneal
-    ordering = _ordering(args, base.ordering)
-    if ordering != base.ordering:
-        changes["ordering"] = ordering
-    return base.replace(**changes) if changes else base
+        out["anneal"] = anneal
+    return out
 
 
 def _anneal(args: argparse.Namespace) -> Anneal | None:
@@ -61,19 +92,6 @@ def _anneal(args: argparse.Namespace) -> Anneal | None:
     return Anneal(start=start, iterations=iterations)
 
 
-def _ordering(args: argparse.Namespace, base: dict[str, Any]) -> dict[str, Any]:
-    """The ordering's settings: ``base`` with the method and its options given on the command line."""
-    ordering = dict(base)
-    method = getattr(args, "ordering", None) or getattr(args, "method", None)
-    if method is not None and method != ordering["method"]:
-        ordering = {"method": method}  # the file's options belong to its own method
-    for option, key in ORDERING:
-        value = getattr(args, option, None)
-        if value is not None:
-            ordering[key] = value
-    return ordering
-
-
 def mission_of(args: argparse.Namespace) -> Mission:
     """The mission file (or built-in example) the options name, with their settings applied."""
     # A schedule given here replaces the file's: the file's is then not checked against its r.
@@ -87,14 +105,7 @@ def mission_of(args: argparse.Namespace) -> Mission:
     else:
         mission = load_mission(args.mission, check_schedule=not replaced)
     settings = planner_settings(args, mission.planner)
-    if hasattr(args, "ordering") and settings.kind != "smoothed":  # `plan`: the ordering's options
-        given = [f"--{option}" for option in ("ordering", "seed") if getattr(args, option, None) is not None]
-        if given:
-            raise ConfigError(
-                f"{given[0]}: the {settings.kind} planner runs no ordering; "
-                "it applies with --planner smoothed."
-            )
-    if settings is not mission.planner:
+    if settings != mission.planner:
         try:
             settings.check_r(mission.scenario.r)
         except ConfigError as err:

@@ -41,8 +41,8 @@ def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np
     of 0.5), which the 1e-5 inward back-off of hard rows (:data:`pmht_opt.mstep.rows.BACKOFF`) makes
     infeasible. A clashing locale
     takes its most probable time that clashes with nothing (the nearest such time among equally probable
-    ones), so times with zero weight (outside a sub-batch in :func:`~pmht_opt.smoothed.plan_smoothed`)
-    are chosen only if nothing else is left.
+    ones), so times with zero weight (outside a sub-batch in
+    :func:`~pmht_opt.planners.smoothed.plan_smoothed`) are chosen only if nothing else is left.
     """
     es = ctx.estep
     if es is None:

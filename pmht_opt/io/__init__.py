@@ -17,12 +17,11 @@ from pmht_opt.io.geojson import export_geojson, plan_geojson, read_geojson_paths
 from pmht_opt.io.mission import Mission, load_mission, mission_from_dict, save_mission
 from pmht_opt.io.points import read_points
 from pmht_opt.io.qgc import export_qgc_plan, qgc_paths, read_qgc_plan
-from pmht_opt.io.run import PLANNERS, order_mission, plan_mission
+from pmht_opt.io.run import order_mission, plan_mission
 from pmht_opt.io.settings import PlannerSettings
 
 __all__ = [
     "EXAMPLES",
-    "PLANNERS",
     "Frame",
     "Mission",
     "PlannerSettings",

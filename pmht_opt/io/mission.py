@@ -45,7 +45,6 @@ from pathlib import Path
 from typing import Any
 
 from pmht_opt import validation
-from pmht_opt.anneal import Anneal
 from pmht_opt.constraints.base import Constraint, fitting_constraints
 from pmht_opt.exceptions import ConfigError, PmhtOptError, ScenarioError
 from pmht_opt.geometry.earth import GeoOrigin, check_origin
@@ -106,7 +105,10 @@ class Mission:
         check_origin(self.origin)
         limit = validation.COORDINATE_MAX
         self.altitude = validation.real("altitude", self.altitude, ConfigError, 0.0, limit)
-        self.planner.check_r(self.scenario.r)
+        try:
+            self.planner.check_r(self.scenario.r)
+        except ConfigError as err:
+            raise ConfigError(f"planner.{err}") from None
 
     @property
     def frame(self) -> Frame:
@@ -238,16 +240,14 @@ def mission_from_dict(
         except PmhtOptError as err:
             raise type(err)(f"constraints[{i}]: {err}") from None
     planner = read_settings("planner", top["planner"]) if "planner" in top else PlannerSettings()
-    if not check_schedule:
-        unchecked = planner.replace(anneal=Anneal(iterations=0))  # the caller's schedule replaces it
-        mission = Mission(scenario, constraints, unchecked, origin, altitude, assumed, source)
-        mission.planner = planner
-        return mission
-    try:
-        planner.check_r(scenario.r)
-    except ConfigError as err:
-        raise ConfigError(f"planner.{err}") from None
-    return Mission(scenario, constraints, planner, origin, altitude, assumed, source)
+    if check_schedule:
+        try:
+            planner.check_r(scenario.r)
+        except ConfigError as err:
+            raise ConfigError(f"planner.{err}") from None
+    mission = Mission(scenario, constraints, PlannerSettings(), origin, altitude, assumed, source)
+    mission.planner = planner  # checked above, or by a caller that replaces its schedule
+    return mission
 
 
 def load_mission(path: str | Path, *, check_schedule: bool = True) -> Mission:

@@ -1,19 +1,20 @@
-"""Planner settings of a mission: which planner runs, and its options (the ``[planner]`` table).
+"""A mission's ``[planner]`` table: which planner runs, and its settings and options by name.
 
 .. code-block:: toml
 
     [planner]
-    kind = "pmht"                 # "pmht", "smoothed" or "coverage"
-    solver = "auto"
-    iterations = 100
-    anneal = { start = 62500.0, iterations = 30 }   # or [start, iterations], or false
-    return_to_base = true
+    method = "coverage"           # a planner of pmht_opt.PLANNERS ("kind" in older files)
+    iterations = 60               # stop after this many iterations (MaxIterations)
+    return_to_base = true         # every platform ends at its start, at rest; routes are closed
+    solver = "auto"               # a shared setting (pmht_opt.Settings), by its name
+    radius = 100.0                # an option of the chosen planner, by its name
 
-    [planner.ordering]            # the smoothed planner's ordering: a method and its own options
-    method = "ga"
-    seed = 0
-
-Every setting has the library's default; the command line's options override the file's.
+Keys map onto the library's own dataclasses by name: :class:`~pmht_opt.Settings`' fields (but
+``constraints``, which the mission's ``[[constraints]]`` give), and the chosen planner's options
+(``PLANNERS[method].Options``). Four keys belong to the mission itself: ``method``, ``iterations``,
+``return_to_base`` and, for the PMHT planner, ``tol`` (stop at that relative change of the EM
+objective) and ``paper`` (the paper's options, :meth:`~pmht_opt.PMHTOptions.paper`). Every setting
+has the library's default; the command line's options override the file's.
 """
 
 from __future__ import annotations
@@ -24,171 +25,144 @@ from typing import Any
 
 from pmht_opt.anneal import Anneal
 from pmht_opt.constraints.base import Constraint
-from pmht_opt.constraints.params import positive_number
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.io import fields
-from pmht_opt.ordering import ordering_method
-from pmht_opt.planner import PMHTConfig
+from pmht_opt.planners import PLANNERS, planner
+from pmht_opt.settings import SETTINGS_FIELDS, PMHTOptions, Settings
+from pmht_opt.stopping import MaxIterations, ObjectiveTolerance, StoppingCriterion
 
-#: The planners a mission can name.
-PLANNERS = ("pmht", "smoothed", "coverage")
-#: The ordering methods a mission can name (whether each is installed is checked when it runs).
-ORDERINGS = ("ga", "ortools", "pyvrp")
-#: How the smoothed planner cuts a platform's horizon (:func:`~pmht_opt.plan_smoothed`'s ``split``).
-SPLITS = ("equal", "distance")
-
-
-def _library_default(name: str) -> Any:
-    f = next(f for f in dataclasses.fields(PMHTConfig) if f.name == name)
-    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+#: The keys that belong to the mission, not to the planner's settings or options.
+MISSION_KEYS = ("method", "iterations", "tol", "paper", "return_to_base")
+#: The shared settings a file can give (the constraints come from its ``[[constraints]]``).
+SHARED = tuple(f for f in SETTINGS_FIELDS if f != "constraints")
+#: The default planner of a mission.
+DEFAULT_METHOD = "pmht"
 
 
 @dataclass
 class PlannerSettings:
-    """Which planner a mission runs and how.
+    """Which planner a mission runs, with which settings and options.
 
     Parameters
     ----------
-    kind
-        ``"pmht"`` (:func:`~pmht_opt.plan_pmht`), ``"smoothed"`` (an ordering, then
-        :func:`~pmht_opt.plan_smoothed`) or ``"coverage"`` (``plan_coverage``, where installed).
-    solver, tol, update_time_prior
-        As in :class:`~pmht_opt.PMHTConfig`; ``update_time_prior=None`` keeps the preset's.
+    method
+        The planner (:data:`pmht_opt.PLANNERS`).
     iterations
-        ``PMHTConfig.max_iter``.
-    anneal
-        The schedule of ``r``; ``None`` keeps the preset's (the library's default, or none with
-        ``paper``), ``Anneal(iterations=0)`` is plain EM.
+        Iterations of the planner's run at most (``None``: the planner's default stop).
+    tol
+        The PMHT planner's stop at a relative change of the EM objective (0: never).
     paper
-        Start from :meth:`PMHTConfig.paper` instead of the defaults.
+        The PMHT planner starts from the paper's options (both prior updates, no annealing).
     return_to_base
         Every platform ends at its start, at rest (:meth:`~pmht_opt.Terminal.return_to_base`), and
         orderings close their routes.
-    ordering
-        The smoothed planner's ordering: ``method`` (``"ga"``, ``"ortools"``, ``"pyvrp"``) and that
-        method's own options (:func:`~pmht_opt.order_locales`).
-    visit_radius, split
-        The smoothed planner's (``None``: the scenario's coverage radius).
-    radius
-        The coverage planner's sensor radius (``None``: the scenario's coverage radius).
+    shared
+        Shared settings by name (:class:`~pmht_opt.Settings`' fields but ``constraints``).
+    options
+        The planner's own options by name.
     """
 
-    kind: str = "pmht"
-    solver: str = "auto"
-    iterations: int = 100
+    method: str = DEFAULT_METHOD
+    iterations: int | None = None
     tol: float = 0.0
-    anneal: Anneal | None = None
-    update_time_prior: bool | None = None
     paper: bool = False
     return_to_base: bool = False
-    ordering: dict[str, Any] = field(default_factory=lambda: {"method": "ga"})
-    visit_radius: float | None = None
-    split: str = "equal"
-    radius: float | None = None
+    shared: dict[str, Any] = field(default_factory=dict)
+    options: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.kind not in PLANNERS:
-            raise ConfigError(f"kind: expected one of {', '.join(PLANNERS)}, got {self.kind!r}.")
-        if isinstance(self.iterations, bool) or not isinstance(self.iterations, int) or self.iterations < 1:
+        chosen = planner(self.method)
+        if self.iterations is not None and (
+            isinstance(self.iterations, bool) or not isinstance(self.iterations, int) or self.iterations < 1
+        ):
             raise ConfigError(f"iterations: expected a positive integer, got {self.iterations!r}.")
-        if self.split not in SPLITS:
-            raise ConfigError(f"split: expected one of {', '.join(SPLITS)}, got {self.split!r}.")
         for key in ("paper", "return_to_base"):
             if not isinstance(getattr(self, key), bool):
                 raise ConfigError(f"{key}: expected true or false, got {getattr(self, key)!r}.")
-        for key in ("visit_radius", "radius"):
-            if getattr(self, key) is not None:
-                positive_number(key, getattr(self, key))
-        if not isinstance(self.ordering, dict):
-            raise ConfigError(
-                f"ordering: expected a table of a method and its options, got {self.ordering!r}."
-            )
-        method = self.ordering.get("method", "ga")
-        if method not in ORDERINGS:
-            raise ConfigError(f"ordering.method: expected one of {', '.join(ORDERINGS)}, got {method!r}.")
-        self.ordering = {"method": method, **{k: v for k, v in self.ordering.items() if k != "method"}}
-        try:  # the option names, whichever planner runs (their values when the ordering runs)
-            ordering_method(method, self.ordering_options)
-        except ConfigError as err:
-            raise ConfigError(f"ordering.{err}") from None
-        self.config(())  # the library's own checks (solver name, tolerances, schedule)
+        if self.method != "pmht":
+            for key, default in (("tol", 0.0), ("paper", False)):
+                if getattr(self, key) != default:
+                    raise ConfigError(f"{key}: a setting of the pmht planner, not of {self.method!r}.")
+        unknown = sorted(set(self.shared) - set(SHARED))
+        if unknown:
+            raise ConfigError(f"{unknown[0]}: not a shared setting; they are {', '.join(SHARED)}.")
+        self.settings(())  # the library's own checks, naming the field
+        chosen.options(self.planner_options())
+        self.stop()
 
-    @property
-    def method(self) -> str:
-        """The ordering method."""
-        return str(self.ordering["method"])
+    def planner_options(self) -> dict[str, Any]:
+        """The planner's options: the paper's first (``paper``), then the file's."""
+        if self.paper:
+            base = PMHTOptions.paper()
+            return {**{f: getattr(base, f) for f in ("update_time_prior", "anneal")}, **self.options}
+        return dict(self.options)
 
-    @property
-    def ordering_options(self) -> dict[str, Any]:
-        """The ordering method's options, without ``method``."""
-        return {k: v for k, v in self.ordering.items() if k != "method"}
+    def settings(self, constraints: tuple[Constraint, ...] | list[Constraint]) -> Settings:
+        """The shared settings with ``constraints``."""
+        return Settings(**self.shared, constraints=tuple(constraints))
+
+    def stop(self) -> StoppingCriterion | None:
+        """When the run stops: ``None`` for the planner's own default."""
+        criteria: list[StoppingCriterion] = []
+        if self.tol:
+            criteria.append(ObjectiveTolerance(self.tol))
+        if self.iterations is not None:
+            criteria.append(MaxIterations(self.iterations))
+        elif criteria:
+            criteria.append(PLANNERS[self.method].default_stop())
+        if not criteria:
+            return None
+        return criteria[0] if len(criteria) == 1 else _any(criteria)
 
     def schedule(self) -> Anneal:
-        """The annealing schedule the plan will use."""
-        if self.anneal is not None:
-            return self.anneal
-        return Anneal(iterations=0) if self.paper else _library_default("anneal")
+        """The annealing schedule a PMHT run of these settings uses."""
+        options = PLANNERS["pmht"].options(self.planner_options() if self.method == "pmht" else {})
+        anneal: Anneal = options.anneal
+        return anneal
 
     def check_r(self, r: float) -> None:
-        """Refuse a schedule that would start *below* the scenario's ``r``.
-
-        Annealing starts wide and shrinks to ``r``; a start below ``r`` sharpens the penalty first,
-        the opposite of its purpose. Schedules are absolute variances in the scenario's unit, so the
-        library's default (``start = 1``, meant for areas of about 10 units) is wrong for a mission
-        in metres, and the message says what to write instead.
-        """
-        sched = self.schedule()
-        if sched.empty or sched.fn is not None or sched.start > r:
+        """Refuse a PMHT schedule that would start *below* the scenario's ``r`` (annealing starts
+        wide and shrinks to ``r``); the default start follows the scenario's units (100 r)."""
+        if self.method != "pmht":
             return
-        what = "the default schedule" if self.anneal is None else "the schedule"
+        sched = self.schedule()
+        if sched.empty or sched.fn is not None or sched.start is None or sched.start > r:
+            return
         raise ConfigError(
-            f"anneal: {what} starts at r = {sched.start:g}, not above this scenario's r = {r:g}; "
-            f"schedules are variances in the scenario's unit: set anneal = {{ start = {100 * r:g}, "
-            f"iterations = {sched.iterations} }} (100 r, as the default is for the paper's r = 0.01), "
-            "or anneal = false."
+            f"anneal: the schedule starts at r = {sched.start:g}, not above this scenario's r = {r:g}; "
+            "leave start out (it is then 100 r) or give one above r, or anneal = false."
         )
 
-    def config(
-        self, constraints: tuple[Constraint, ...] | list[Constraint], snapshots: tuple[int, ...] = ()
-    ) -> PMHTConfig:
-        """The :class:`~pmht_opt.PMHTConfig` of these settings with ``constraints``."""
-        kwargs: dict[str, Any] = {
-            "solver": self.solver,
-            "max_iter": self.iterations,
-            "tol": self.tol,
-            "constraints": tuple(constraints),
-            "snapshots": tuple(snapshots),
-        }
-        if self.anneal is not None:
-            kwargs["anneal"] = self.anneal
-        if self.update_time_prior is not None:
-            kwargs["update_time_prior"] = self.update_time_prior
-        return PMHTConfig.paper(**kwargs) if self.paper else PMHTConfig(**kwargs)
-
     def replace(self, **changes: Any) -> PlannerSettings:
-        """A copy with some settings changed (validated again)."""
+        """A copy with some settings changed (checked again)."""
         return dataclasses.replace(self, **changes)
 
     def to_table(self) -> dict[str, Any]:
         """The ``[planner]`` table of these settings (defaults left out)."""
-        default = PlannerSettings()
-        out: dict[str, Any] = {"kind": self.kind}
-        for key in ("solver", "iterations", "tol", "update_time_prior", "paper", "return_to_base"):
-            if getattr(self, key) != getattr(default, key):
+        out: dict[str, Any] = {"method": self.method}
+        for key in ("iterations", "tol", "paper", "return_to_base"):
+            default = next(f for f in dataclasses.fields(self) if f.name == key).default
+            if getattr(self, key) != default:
                 out[key] = getattr(self, key)
-        if self.anneal is not None:
-            a = self.anneal
-            out["anneal"] = (
-                False if a.empty else {"start": a.start, "iterations": a.iterations, "shape": a.shape}
-            )
-        for key in ("visit_radius", "radius"):
-            if getattr(self, key) is not None:
-                out[key] = getattr(self, key)
-        if self.split != default.split:
-            out["split"] = self.split
-        if self.ordering != default.ordering:
-            out["ordering"] = dict(self.ordering)
+        out.update(self.shared)
+        for key, value in self.options.items():
+            out[key] = _anneal_table(value) if isinstance(value, Anneal) else value
         return out
+
+
+def _any(criteria: list[StoppingCriterion]) -> StoppingCriterion:
+    from pmht_opt.stopping import AnyOf
+
+    return AnyOf(tuple(criteria))
+
+
+def _anneal_table(a: Anneal) -> Any:
+    if a.empty:
+        return False
+    table: dict[str, Any] = {"iterations": a.iterations, "shape": a.shape}
+    if a.start is not None:
+        table["start"] = a.start
+    return table
 
 
 def read_anneal(where: str, value: Any) -> Anneal:
@@ -213,29 +187,61 @@ def read_anneal(where: str, value: Any) -> Anneal:
     )
 
 
+#: How a value of a known key is read from a file (others are taken as the file gives them).
+READERS: dict[str, Any] = {
+    "method": fields.string,
+    "iterations": fields.integer,
+    "tol": fields.number,
+    "paper": fields.boolean,
+    "return_to_base": fields.boolean,
+    "solver": fields.string,
+    "threads": fields.integer,
+    "seed": fields.integer,
+    "accept_inaccurate": fields.boolean,
+    "solver_settings": fields.table,
+    "anneal": read_anneal,
+    "update_time_prior": fields.boolean,
+    "update_platform_prior": fields.boolean,
+    "radius": fields.number_or_numbers,
+    "visit_radius": fields.number,
+    "split": fields.string,
+    "orderer": fields.string,
+    "order_options": fields.table,
+}
+
+
 def read_settings(where: str, data: Any) -> PlannerSettings:
     """Planner settings from a ``[planner]`` table; messages name ``where`` and the key."""
-    table = fields.table(where, data)
-    readers: dict[str, Any] = {
-        "kind": fields.string,
-        "solver": fields.string,
-        "iterations": fields.integer,
-        "tol": fields.number,
-        "anneal": read_anneal,
-        "update_time_prior": fields.boolean,
-        "paper": fields.boolean,
-        "return_to_base": fields.boolean,
-        "ordering": fields.table,
-        "visit_radius": fields.number,
-        "split": fields.string,
-        "radius": fields.number,
-    }
-    kwargs = fields.keyed(where, table, readers, "setting")
-    if "ordering" in kwargs:
-        kwargs["ordering"] = dict(kwargs["ordering"])
-        if "method" in kwargs["ordering"]:
-            fields.string(f"{where}.ordering.method", kwargs["ordering"]["method"])
+    table = dict(fields.table(where, data))
+    if "kind" in table:  # the name older files use
+        if "method" in table:
+            raise ScenarioError(f"{where}: give method or kind, not both.")
+        table["method"] = table.pop("kind")
+    if "ordering" in table:  # older files: [planner.ordering] method = ..., options ...
+        ordering = dict(fields.table(f"{where}.ordering", table.pop("ordering")))
+        if "method" in ordering:
+            table["orderer"] = ordering.pop("method")
+        table["order_options"] = ordering
+    values = {key: READERS.get(key, _as_given)(f"{where}.{key}", value) for key, value in table.items()}
+    method = values.pop("method", DEFAULT_METHOD)
+    mission = {k: values.pop(k) for k in MISSION_KEYS[1:] if k in values}
+    shared = {k: values.pop(k) for k in SHARED if k in values}
     try:
-        return PlannerSettings(**kwargs)
+        names = planner(method).option_names()
+    except ConfigError as err:
+        raise ConfigError(f"{where}.{err}") from None
+    unknown = sorted(set(values) - set(names))
+    if unknown:
+        raise ConfigError(
+            f"{where}.{unknown[0]}: not a setting of the {method!r} planner; it takes "
+            f"{', '.join((*MISSION_KEYS, *SHARED, *names))}."
+        )
+    try:
+        return PlannerSettings(method=method, shared=shared, options=values, **mission)
     except ConfigError as err:
         raise ConfigError(f"{where}: {err}") from None
+
+
+def _as_given(where: str, value: Any) -> Any:
+    del where
+    return value

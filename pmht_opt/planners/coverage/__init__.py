@@ -7,6 +7,6 @@ locales (:mod:`.search`), the shortest polylines through the locales' discs in t
 model's smoother flying the best polylines with each disc a hard constraint (:mod:`.tracking`).
 """
 
-from pmht_opt.coverage.planner import CoverageProgress, missed_locales, plan_coverage
+from pmht_opt.planners.coverage.planner import CoverageProgress, missed_locales, plan_coverage
 
 __all__ = ["CoverageProgress", "missed_locales", "plan_coverage"]

@@ -4,7 +4,7 @@ polyline through the discs gets shorter.
 An ordering of the locale centres (the open multiple TSP of docs/model.md section 9) is a poor guide
 once a path only has to touch each disc: two locales 0.5 apart are one pass, not a leg, and the best
 order through the discs differs from the best order through the centres. So the tours are improved
-in rounds: the visit points (:func:`~pmht_opt.coverage.discs.visit_points`) of the best tour so far
+in rounds: the visit points (:func:`~pmht_opt.planners.coverage.discs.visit_points`) of the best tour so far
 are ordered again as if they were the locales, each new order gets its own visit points, and the
 rounds go on while the polyline through the discs gets shorter. Overlapping discs end up with one
 shared visit point, which the next ordering treats as one stop.
@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from pmht_opt.coverage.discs import visit_points
 from pmht_opt.exceptions import ConfigError, SolverError
 from pmht_opt.ordering import METHODS, order_locales
+from pmht_opt.planners.coverage.discs import visit_points
 from pmht_opt.scenario import Scenario
 
 #: Preference of ``orderer="auto"``: the first one installed.

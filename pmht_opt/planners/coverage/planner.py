@@ -12,20 +12,34 @@ import numpy as np
 from pmht_opt import validation
 from pmht_opt.constraints.params import positive_number
 from pmht_opt.constraints.visits import VisitAll
-from pmht_opt.coverage.search import Candidate, resolve_orderer, search, variants
-from pmht_opt.coverage.tracking import track_routes
 from pmht_opt.exceptions import ConfigError, SolverError
 from pmht_opt.geometry import missed_locales as missed_by
 from pmht_opt.ordering.pyvrp_ import SEED_MAX
 from pmht_opt.ordering.tour import check_min_tour
-from pmht_opt.planner import PMHTConfig
+from pmht_opt.planners.base import refuse_ignored
+from pmht_opt.planners.coverage.search import Candidate, resolve_orderer, search, variants
+from pmht_opt.planners.coverage.tracking import track_routes
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario
+from pmht_opt.settings import PMHTConfig
+from pmht_opt.stopping import Progress, StoppingCriterion
 from pmht_opt.validation import MAX_ITERATIONS
 
 #: Fraction of the coverage radius at which the visit polylines touch the discs: the rest is room for
 #: the smoother to round the polylines' corners without leaving a disc.
 DEFAULT_SHRINK = 0.8
+#: The EM settings of a PMHTConfig that plan_coverage does not use: its paths come from fixed
+#: synthetic measurements, smoothed ``iterations`` times.
+IGNORED = (
+    "max_iter",
+    "tol",
+    "update_time_prior",
+    "update_platform_prior",
+    "anneal",
+    "estep_gate",
+    "snapshots",
+    "stop",
+)
 #: Iterations of the final smoothing: each re-chooses the visit steps on the last iterate.
 ITERATIONS = 3
 #: The same when a user constraint is re-linearised at each iterate (obstacles).
@@ -82,6 +96,7 @@ def _settings(scenario: Any, radius: Any, config: Any, opts: dict[str, Any]) -> 
     cfg = PMHTConfig() if config is None else config
     if not isinstance(cfg, PMHTConfig):
         raise ConfigError(f"config: expected a PMHTConfig, got {type(cfg).__name__}.")
+    refuse_ignored(cfg, IGNORED, "plan_coverage")
     visits = [c.name for c in cfg.constraints if isinstance(c, VisitAll)]
     if visits:
         raise ConfigError(
@@ -153,23 +168,24 @@ def plan_coverage(
     iterations: int | None = None,
     time_budget: float | None = None,
     callback: Callable[[CoverageProgress], None] | None = None,
+    stop: StoppingCriterion | None = None,
 ) -> PlanResult:
     """The shortest smooth plan found in which every locale is within ``radius`` of some path.
 
-    The method, in three stages (docs in :mod:`pmht_opt.coverage`):
+    The method, in three stages (docs in :mod:`pmht_opt.planners.coverage`):
 
     1. *Tours.* ``starts`` orderings of the locales (the open multiple TSP of docs/model.md section 9)
        by ``orderer``; for each, the shortest polyline from the platforms' starts through the locales'
-       discs in that order, at ``shrink * radius`` (:mod:`~pmht_opt.coverage.discs`), gives a visit
+       discs in that order, at ``shrink * radius`` (:mod:`~pmht_opt.planners.coverage.discs`), gives a visit
        point per locale.
     2. *Rounds.* The visit points of the ``beam`` best tours are ordered again as if they were the
        locales, with every variant of the orderer, up to ``rounds`` times, while the polyline through
-       the discs gets shorter (:mod:`~pmht_opt.coverage.search`): the order adapts to discs instead of
-       centres, and one pass serves locales whose discs overlap.
+       the discs gets shorter (:mod:`~pmht_opt.planners.coverage.search`): the order adapts to discs
+       instead of centres, and one pass serves locales whose discs overlap.
     3. *Paths.* The ``keep`` tours with the shortest polylines are flown: the model's smoother follows
        each polyline at constant speed, with every locale's disc (``radius``) a hard constraint at the
        step its visit point is reached, and with the user's constraints from ``config``
-       (:mod:`~pmht_opt.coverage.tracking`). The shortest plan is returned.
+       (:mod:`~pmht_opt.planners.coverage.tracking`). The shortest plan is returned.
 
     Every flown plan is checked on its positions: every locale within ``radius`` of a path (measured
     on the segments between positions, independently of the visit steps the plan was built with) and
@@ -211,6 +227,9 @@ def plan_coverage(
         smoothed). A wall-clock limit makes the result depend on the machine: for interactive use only.
     callback
         Called with a :class:`CoverageProgress` after each stage.
+    stop
+        A stopping criterion asked before each ordering of the tour search but the first, with a
+        :class:`~pmht_opt.stopping.Progress` whose scores are the shortest polyline so far.
 
     Returns
     -------
@@ -252,10 +271,21 @@ def plan_coverage(
         if callback is not None:
             callback(CoverageProgress(stage, index, length, best, time.perf_counter() - t0))
 
+    lengths: list[float] = []
+
     def in_time() -> bool:
+        if stop is not None and lengths:
+            progress = Progress(len(lengths), list(lengths), time.perf_counter() - t0, True, "search")
+            if stop(progress):
+                return False
         return s.time_budget is None or time.perf_counter() - t0 < s.time_budget
 
-    candidates = _candidates(scenario, s, report, in_time)
+    def searched(stage: str, index: int, length: float) -> None:
+        if stage == "search":
+            lengths.append(length)
+        report(stage, index, length)
+
+    candidates = _candidates(scenario, s, searched, in_time)
     result: PlanResult | None = None
     error: SolverError | None = None
     for index, cand in sorted(enumerate(candidates), key=lambda ic: ic[1].length)[: s.keep]:

@@ -1,5 +1,5 @@
 r"""Smooth paths that follow the visit polylines and pass every locale's disc (the last stage of
-:func:`~pmht_opt.coverage.plan_coverage`).
+:func:`~pmht_opt.planners.coverage.plan_coverage`).
 
 Each platform flies its polyline (start, then its visit points in order) over the horizon with a
 :class:`SpeedProfile`: from rest, speeding up over the first steps, then at constant speed, so that
@@ -15,7 +15,7 @@ points. On top, every locale's disc is a hard constraint at one step near :math:
 smoother swings between them; here the pull is dense and along the straight legs, so the path stays
 near the polyline and its length near the polyline's: the smoother rounds the corners (shorter), and
 the discs hold it where rounding would leave them. The polylines touch the discs at a fraction of the
-radius (``shrink`` in :func:`~pmht_opt.coverage.plan_coverage`), which leaves the rounding room.
+radius (``shrink`` in :func:`~pmht_opt.planners.coverage.plan_coverage`), which leaves the rounding room.
 
 The run is an :class:`~pmht_opt.em.EMRun` on a derived scenario whose "locales" are the synthetic
 measurements, each with its time and platform fixed by its priors, so every E-step gives the same
@@ -39,9 +39,9 @@ from pmht_opt.constraints.visits import can_share_step
 from pmht_opt.em import EMRun
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.model import POS, PX, PY, VEL
-from pmht_opt.planner import PMHTConfig
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario
+from pmht_opt.settings import PMHTConfig
 
 
 class VisitDiscs(Constraint):
