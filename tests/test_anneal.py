@@ -53,16 +53,50 @@ def test_schedule_longer_than_the_run_is_cut() -> None:
 @pytest.mark.parametrize(
     ("anneal", "match"),
     [
-        (Anneal.custom(lambda i: -1.0, 5), "r at iteration 1"),
-        (Anneal.custom(lambda i: float("nan"), 5), "r at iteration 1"),
-        (Anneal.custom(lambda i: 1.0 if i < 3 else float("inf"), 5), "r at iteration 3"),
-        (Anneal.custom(lambda i: 1 / 0, 5), "raised at iteration 1"),
+        (Anneal.custom(lambda i: -1.0, 3), "r at iteration 1"),
+        (Anneal.custom(lambda i: float("nan"), 3), "r at iteration 1"),
+        (Anneal.custom(lambda i: 1.0 if i < 3 else float("inf"), 3), "r at iteration 3"),
+        (Anneal.custom(lambda i: 1 / 0, 3), "raised at iteration 1"),
         (lambda i: 0.5, "must reach the scenario's r"),
+        (Anneal.custom(lambda i: 1.0, 5), "custom schedule takes 5 iterations but the run may take only 3"),
     ],
 )
 def test_bad_schedule_values_raise_config_error(anneal: object, match: str, small_b: po.Scenario) -> None:
     with pytest.raises(ConfigError, match=match):
         plan_pmht(small_b, PMHTConfig(max_iter=3, anneal=anneal))
+
+
+@pytest.mark.parametrize("stop", [{"max_iter": 10}, {"stop": [po.MaxIterations(10)]}])
+def test_a_run_shorter_than_its_schedule_compresses_it_and_says_so(
+    small_b: po.Scenario, stop: dict[str, object]
+) -> None:
+    """Stopping after 10 iterations under the default 30-iteration schedule: the schedule takes the
+    same share of the run (3 iterations), the plan is fitted at the scenario's r, and the history
+    says the schedule was compressed."""
+    res = plan_pmht(small_b, PMHTConfig(**stop))  # type: ignore[arg-type]
+    h = res.history
+    assert h.n_iterations == 10 and h.fitted_r == small_b.r
+    assert h.settled == 3 and np.all(h.r[3:] == small_b.r) and h.r[1] > small_b.r
+    assert "compressed from 30 to 3 iterations to fit a run of 10" in h.anneal
+    assert res.anneal == h.anneal
+
+
+def test_a_plan_stopped_during_annealing_reports_its_r(small_b: po.Scenario) -> None:
+    """A criterion other than the iteration limit that stops the run while annealing: the plan comes
+    with a PlanWarning and its history says at which r it was fitted."""
+    with pytest.warns(po.PlanWarning, match=r"fitted at r = .*not the scenario's r = 0.01"):
+        res = po.plan(small_b, "pmht", stop=po.AnyOf((po.MaxIterations(100), _StopAt(4))))
+    assert res.history.fitted_r > small_b.r and res.history.stop_reason == "_StopAt"
+
+
+class _StopAt:
+    """Stops after a given iteration (a criterion the schedule cannot plan for)."""
+
+    def __init__(self, iteration: int) -> None:
+        self.iteration = iteration
+
+    def __call__(self, progress: po.Progress) -> bool:
+        return progress.iteration >= self.iteration
 
 
 @pytest.mark.parametrize(
@@ -91,7 +125,8 @@ def test_bad_anneal_setting_is_a_config_error() -> None:
 
 
 def test_presets() -> None:
-    assert PMHTConfig().anneal == Anneal(start=1.0, iterations=30)
+    assert PMHTConfig().anneal == Anneal(iterations=30)
+    assert Anneal().start_for(0.01) == 1.0 and Anneal().start_for(400.0) == 40000.0
     paper = PMHTConfig.paper()
     assert paper.anneal.empty and paper.update_time_prior and paper.update_platform_prior
 
@@ -109,8 +144,9 @@ def test_objective_never_decreases_after_the_schedule(small_b: po.Scenario, solv
 
 def test_history_objective_uses_the_iterations_r(small_b: po.Scenario) -> None:
     """objective[i] = log P(X_i) + data term at r_i, with the priors of that iteration."""
-    cfg = PMHTConfig(max_iter=6, anneal=Anneal(1.0, 15), update_platform_prior=False)
-    res = plan_pmht(small_b, cfg)
+    cfg = PMHTConfig(max_iter=20, anneal=Anneal(1.0, 15), update_platform_prior=False, stop=[_StopAt(6)])
+    with pytest.warns(po.PlanWarning):  # stopped during annealing, on purpose
+        res = plan_pmht(small_b, cfg)
     h = res.history
     expected = (
         small_b.model.log_prior(res.states)

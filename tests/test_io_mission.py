@@ -173,31 +173,28 @@ def test_unknown_fields_and_bad_files(tmp_path: Path) -> None:
 
 def test_planner_settings_read_typed_and_checked(tmp_path: Path) -> None:
     text = mission_text(
-        planner='kind = "smoothed"\nsolver = "osqp"\niterations = 7\nanneal = [0.5, 3]\n'
-        'return_to_base = true\nsplit = "distance"\n'
-        '[planner.ordering]\nmethod = "ga"\nseed = 3\niterations = 50'
+        planner='method = "smoothed"\nsolver = "osqp"\niterations = 7\n'
+        'return_to_base = true\nsplit = "distance"\norderer = "ga"\n'
+        "order_options = { seed = 3, iterations = 50 }"
     )
     s = load_mission(write(tmp_path, text)).planner
-    assert (s.kind, s.solver, s.iterations, s.return_to_base, s.split) == (
-        "smoothed",
-        "osqp",
-        7,
-        True,
-        "distance",
-    )
-    assert s.schedule().start == 0.5 and s.schedule().iterations == 3
-    assert s.method == "ga" and s.ordering_options == {"seed": 3, "iterations": 50}
-    cfg = s.config(())
-    assert cfg.solver == "osqp" and cfg.max_iter == 7
+    assert (s.method, s.shared, s.iterations, s.return_to_base) == ("smoothed", {"solver": "osqp"}, 7, True)
+    assert s.options == {"split": "distance", "orderer": "ga", "order_options": {"seed": 3, "iterations": 50}}
+    assert s.settings(()).solver == "osqp" and s.stop() == po.MaxIterations(7)
+    pmht = load_mission(write(tmp_path, mission_text(planner="anneal = [0.5, 3]\ntol = 0.001"))).planner
+    assert pmht.schedule().start == 0.5 and pmht.schedule().iterations == 3
     for bad, message in [
         ('iterations = "7"', "planner.iterations: expected an integer"),
-        ('kind = "fast"', "planner: kind: expected one of pmht, smoothed, coverage"),
-        ('solver = "gurobi"', "planner: "),
+        ('method = "fast"', "planner.method: expected one of coverage, smoothed, pmht"),
+        ('method = "coverage"\nmethod_x = 1', "planner.method_x: not a setting of the 'coverage' planner"),
+        ('kind = "pmht"\nmethod = "pmht"', "planner: give method or kind, not both"),
+        ('solver = "gurobi"', "planner: solver: "),
         ("anneal = [1.0]", "planner.anneal: expected [start, iterations]"),
         ("anneal = { start = 1.0, steps = 3 }", "planner.anneal: unknown key 'steps'"),
         ('return_to_base = "yes"', "planner.return_to_base: expected true or false"),
-        ("speed = 3", "planner: unknown setting 'speed'"),
-        ('[planner.ordering]\nmethod = "lkh"', "ordering.method: expected one of ga, ortools, pyvrp"),
+        ("speed = 3", "planner.speed: not a setting of the 'pmht' planner"),
+        ('method = "coverage"\nanneal = false', "planner.anneal: not a setting of the 'coverage' planner"),
+        ('method = "coverage"\ntol = 0.1', "planner: tol: a setting of the pmht planner"),
     ]:
         with pytest.raises(PmhtOptError) as err:
             load_mission(write(tmp_path, mission_text(planner=bad)))
@@ -205,13 +202,11 @@ def test_planner_settings_read_typed_and_checked(tmp_path: Path) -> None:
 
 
 def test_an_anneal_below_r_is_refused_with_what_to_write() -> None:
+    """The default schedule starts at 100 r, in the mission's units; a start below r is refused."""
     data = {"locales": [[0, 0], [100, 50]], "starts": [[0, 0]], "r": 25.0}
-    with pytest.raises(
-        ConfigError, match=r"planner.anneal: the default schedule starts at r = 1, not above .* r = 25"
-    ):
-        mission_from_dict(data)
-    with pytest.raises(ConfigError, match="start = 2500"):
-        mission_from_dict(data)
+    assert mission_from_dict(data).planner.schedule().start_for(25.0) == 2500.0
+    with pytest.raises(ConfigError, match=r"planner.anneal: the schedule starts at r = 1, not above"):
+        mission_from_dict({**data, "planner": {"anneal": {"start": 1.0, "iterations": 30}}})
     ok = mission_from_dict({**data, "planner": {"anneal": {"start": 2500.0, "iterations": 30}}})
     assert ok.planner.schedule().start == 2500.0
     assert mission_from_dict({**data, "planner": {"anneal": False}}).planner.schedule().empty
@@ -334,14 +329,9 @@ def test_the_example_mission_loads() -> None:
 
 
 def test_settings_defaults_are_the_librarys() -> None:
-    cfg = PlannerSettings().config(())
-    lib = po.PMHTConfig()
-    assert (cfg.solver, cfg.max_iter, cfg.tol, cfg.anneal, cfg.update_time_prior) == (
-        lib.solver,
-        lib.max_iter,
-        lib.tol,
-        lib.anneal,
-        lib.update_time_prior,
-    )
-    paper = read_settings("planner", {"paper": True}).config(())
-    assert paper.update_time_prior and paper.anneal.empty
+    """A [planner] table without keys is the library's defaults: the PMHT planner's options and stop."""
+    s = PlannerSettings()
+    assert s.method == "pmht" and s.stop() is None and s.settings(()) == po.Settings()
+    assert po.PLANNERS["pmht"].options(s.planner_options()) == po.PLANNERS["pmht"].Options()
+    paper = read_settings("planner", {"paper": True}).planner_options()
+    assert paper["update_time_prior"] and paper["anneal"].empty

@@ -92,9 +92,9 @@ def test_smoothed_infeasible_names_platform_and_locale() -> None:
 def test_tour_visits_take_the_first_most_probable_step_of_each_window(
     gate: object, tours: dict, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from pmht_opt import smoothed
     from pmht_opt.constraints.base import ConstraintContext
     from pmht_opt.estep import estep
+    from pmht_opt.planners import windows as smoothed
 
     sc, tour = tours["B"]
     platform, windows = np.empty(sc.n_locales, dtype=int), sub_batches(sc, tour.routes)

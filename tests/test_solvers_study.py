@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import pmht_opt as po
 import solvers
 from pmht_opt import PMHTConfig, plan_pmht
 from pmht_opt.cli import main
@@ -106,7 +107,10 @@ def test_iterate_is_the_planners_run() -> None:
     it = make_iterate(sc, 3)
     assert (it.prev.iteration, it.cur.iteration) == (3, 4)
     for step, done in ((it.prev, 2), (it.cur, 3)):
-        plan = plan_pmht(sc, PMHTConfig(solver="kalman", max_iter=done))
+        # Stopped after ``done`` iterations of the default run (not an iteration limit, which would
+        # compress its annealing schedule): a plan fitted during annealing, on purpose.
+        with pytest.warns(po.PlanWarning):
+            plan = plan_pmht(sc, PMHTConfig(solver="kalman", stop=[lambda p, k=done: p.iteration >= k]))
         np.testing.assert_array_equal(step.states, plan.states)
         assert step.r == PMHTConfig().anneal.values(sc.r, 10)[done]
     data = it.cur.data(sc)

@@ -28,6 +28,8 @@ from pmht_opt.io.mission import Mission
 
 LOCALES = [[1.0, 1.0], [2.0, 2.5], [3.0, 1.0]]
 FAST = po.PMHTConfig(max_iter=2, anneal=None)
+#: The smoothed planner fixes the EM's own options itself: only its stop is taken from a config.
+SMOOTHED = po.PMHTConfig(max_iter=2)
 
 
 def scenario(**changes: Any) -> po.Scenario:
@@ -238,12 +240,12 @@ def mutated_radius() -> po.Scenario:
         (lambda: po.plan_smoothed(None, [[0, 1]]), ConfigError, "scenario"),
         (lambda: po.tour_distance(None, [[0, 1]]), ConfigError, "scenario"),
         (
-            lambda: po.plan_smoothed(scenario(), [[True, 0, *range(2, len(LOCALES))]], FAST),
+            lambda: po.plan_smoothed(scenario(), [[True, 0, *range(2, len(LOCALES))]], SMOOTHED),
             ConfigError,
             "routes[0]",
         ),
         (
-            lambda: po.plan_smoothed(scenario(), [list(range(len(LOCALES)))], FAST, converge="x"),
+            lambda: po.plan_smoothed(scenario(), [list(range(len(LOCALES)))], SMOOTHED, converge="x"),
             ConfigError,
             "converge",
         ),
@@ -253,7 +255,7 @@ def mutated_radius() -> po.Scenario:
                 po.TourResult.from_routes(
                     scenario(locales=np.add(LOCALES, 0.5)), [list(range(len(LOCALES)))]
                 ),
-                FAST,
+                SMOOTHED,
             ),
             ConfigError,
             "tour",
@@ -291,10 +293,23 @@ def mutated_radius() -> po.Scenario:
             "coverage_radius",
         ),
         # Mission settings built in Python, whichever planner they name.
-        (lambda: po.io.PlannerSettings(ordering="ga"), ConfigError, "ordering"),
+        (lambda: po.io.PlannerSettings(method="fast"), ConfigError, "method"),
         (lambda: po.io.PlannerSettings(paper="yes"), ConfigError, "paper"),
-        (lambda: po.io.PlannerSettings(radius=-1), ConfigError, "radius"),
-        (lambda: po.io.PlannerSettings(ordering={"method": "ga", "bogus": 1}), ConfigError, "ordering.bogus"),
+        (lambda: po.io.PlannerSettings("coverage", options={"radius": -1}), ConfigError, "radius"),
+        (lambda: po.io.PlannerSettings("coverage", options={"anneal": None}), ConfigError, "anneal"),
+        (lambda: po.io.PlannerSettings(shared={"solver": "gurobi"}), ConfigError, "solver"),
+        (lambda: po.io.PlannerSettings(shared={"bogus": 1}), ConfigError, "bogus"),
+        (lambda: po.io.PlannerSettings("coverage", tol=0.1), ConfigError, "tol"),
+        (lambda: po.plan(scenario(), "coverage", anneal=None), ConfigError, "anneal"),
+        (lambda: po.plan(scenario(), "pmht", solver="osqp"), ConfigError, "solver"),
+        (lambda: po.plan(scenario(), "fastest"), ConfigError, "method"),
+        (lambda: po.plan(scenario(), "pmht", stop=5), ConfigError, "stop"),
+        (lambda: po.plan(scenario(), "pmht", callback=5), ConfigError, "callback"),
+        (lambda: po.plan(scenario(), "pmht", settings={"solver": "osqp"}), ConfigError, "settings"),
+        (lambda: po.plan_smoothed(scenario(), [[0, 1, 2]], FAST), ConfigError, "config.anneal"),
+        (lambda: po.plan_coverage(scenario(), 0.3, po.PMHTConfig(tol=1.0)), ConfigError, "config.tol"),
+        (lambda: po.Settings(seed=-1), ConfigError, "seed"),
+        (lambda: po.Settings(threads=0), ConfigError, "threads"),
         (
             lambda: po.TourResult.from_routes(scenario(), [[0, 1, 2]]).validate(min_tour="x"),
             ConfigError,
@@ -342,8 +357,9 @@ def test_an_annealing_start_not_above_r_is_refused() -> None:
     ):
         po.plan_pmht(scenario(), po.PMHTConfig(max_iter=3, anneal=(1e-5, 3)))
     with pytest.raises(ConfigError, match=r"anneal.start: .* r = 1, not above the scenario's r = 2"):
-        po.plan_pmht(scenario(r=2.0), po.PMHTConfig(max_iter=3))  # the default schedule, metres-sized r
-    assert po.plan_pmht(scenario(r=2.0), po.PMHTConfig(max_iter=3, anneal=(200.0, 3))).n_iterations == 3
+        po.plan_pmht(scenario(r=2.0), po.PMHTConfig(max_iter=3, anneal=(1.0, 3)))
+    # The default schedule starts at 100 r, whatever the units.
+    assert po.plan_pmht(scenario(r=2.0), po.PMHTConfig(max_iter=10)).history.r[1] == 200.0
 
 
 def test_assumed_bounds_are_logged(caplog: pytest.LogCaptureFixture) -> None:
@@ -532,7 +548,8 @@ def test_sigint_during_an_osqp_solve_exits_130_without_a_retry(tmp_path: Path) -
         (["plan", "{mission}", "--out", "{tmp}/f.docx"], "--out: unknown figure format '.docx'"),
         (["plan", "{mission}", "--out", "{tmp}"], "is a directory"),
         (["plan", "{bad}"], "b.toml: horizon: expected an integer from 2 to 100000, got 1000000"),
-        (["plan", "{mission}", "--seed", "-1"], "--seed: the pmht planner runs no ordering"),
+        (["plan", "{mission}", "--seed", "-1"], "seed: expected an integer from 0"),
+        (["plan", "{mission}", "--ordering", "ga"], "--ordering: an option of the smoothed planner"),
         (["plan", "{mission}", "--example", "survey"], "give a mission file or --example NAME, not both"),
     ],
 )
@@ -569,12 +586,15 @@ def test_cli_round_trips_a_scenario_through_json_and_toml(
 def test_cli_schedule_options_replace_a_files_unsuitable_schedule(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """A file in metres (r = 25) with the library's default schedule is refused, naming what to write,
-    unless the command line replaces the schedule."""
+    """A file in metres (r = 25) plans with the library's default schedule (it starts at 100 r); a
+    file's schedule that starts below r is refused, naming what to write, unless the command line
+    replaces it."""
     mission = tmp_path / "m.toml"
     mission.write_text("locales = [[0.0, 0.0], [100.0, 50.0]]\nstarts = [[0.0, 0.0]]\nhorizon = 20\nr = 25.0")
+    assert cli.main(["plan", str(mission), "--quiet", "--iterations", "2"]) == 0
+    mission.write_text(mission.read_text() + "\n[planner]\nanneal = { start = 1.0, iterations = 2 }")
     assert cli.main(["plan", str(mission), "--quiet", "--iterations", "2"]) == cli.EXIT_ERROR
-    assert "planner.anneal: the default schedule starts at r = 1, not above" in capsys.readouterr().err
+    assert "planner.anneal: the schedule starts at r = 1, not above" in capsys.readouterr().err
     assert cli.main(["plan", str(mission), "--quiet", "--iterations", "2", "--no-anneal"]) == 0
     assert cli.main(["plan", str(mission), "--quiet", "--iterations", "2", "--anneal", "2500", "2"]) == 0
     assert cli.main(["plan", str(mission), "--quiet", "--anneal", "1", "2"]) == cli.EXIT_ERROR

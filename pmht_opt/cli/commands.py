@@ -71,12 +71,15 @@ def plan(mission: Mission, outputs: Outputs, args: argparse.Namespace) -> PlanRe
     total = s.iterations if s.iterations is not None else DEFAULT_ITERATIONS.get(s.method)
     snapshots = tuple(range(total + 1)) if outputs.animation is not None and total else ()
     solver = s.shared.get("solver", "auto")
-    bar = _progress_bar(total, f"{s.method} ({solver})", args.quiet)
+    label = {"pmht": "PMHT"}.get(s.method, s.method)
+    bar = _progress_bar(total, f"{label} ({solver})", args.quiet)
 
     def progress(p: Progress) -> None:
         if bar is not None:
             score = p.scores[-1] if len(p.scores) else float("nan")
-            bar.set_postfix_str(f"{p.stage} {score:.6g}", refresh=False)
+            # The EM reports the negative of its objective (lower is better); show the objective.
+            text = f"objective {-score:.6g}" if p.stage == "em" else f"{p.stage} {score:.6g}"
+            bar.set_postfix_str(text, refresh=False)
             bar.update(1)
 
     try:

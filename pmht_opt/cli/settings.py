@@ -105,12 +105,12 @@ def mission_of(args: argparse.Namespace) -> Mission:
     else:
         mission = load_mission(args.mission, check_schedule=not replaced)
     settings = planner_settings(args, mission.planner)
-    if settings != mission.planner:
+    if replaced:
         try:
             settings.check_r(mission.scenario.r)
         except ConfigError as err:
             raise ConfigError(f"--anneal: {err}") from None
-        mission.planner = settings
+    mission.planner = settings
     if not mission.scenario.name and mission.source is not None:
         mission.scenario.name = mission.source.stem
     return mission

@@ -94,12 +94,12 @@ def _step(run: EMRun) -> Step:
 def make_iterate(scenario: Scenario, iteration: int) -> Iterate:
     """The M-steps of iterations ``K = max(iteration, 2)`` and ``K + 1`` of the default plan.
 
-    The plan uses the kalman M-step (exact) and the default configuration; its budget is ``K + 1``
-    iterations, so the E-step after iteration ``K`` is at iteration ``K + 1``'s penalty, as inside a
-    longer plan (the annealing schedule does not depend on the budget).
+    The plan uses the kalman M-step (exact) and the default configuration (its budget and annealing
+    schedule), stepped ``K + 1`` times: the E-step after iteration ``K`` is at iteration ``K + 1``'s
+    penalty, as inside the whole plan.
     """
     K = max(int(iteration), 2)
-    with EMRun(scenario, PMHTConfig(solver="kalman", max_iter=K + 1)) as run:
+    with EMRun(scenario, PMHTConfig(solver="kalman")) as run:
         for _ in range(K - 1):
             run.step()
         prev = _step(run)

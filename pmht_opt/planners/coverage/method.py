@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from pmht_opt.constraints.params import positive_number
 from pmht_opt.planners.base import Planner
 from pmht_opt.planners.coverage.planner import DEFAULT_SHRINK, CoverageProgress, plan_coverage
 from pmht_opt.result import PlanResult
@@ -27,6 +28,10 @@ class CoverageOptions:
     keep: int = 2
     shrink: float = DEFAULT_SHRINK
     iterations: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.radius is not None:
+            positive_number("radius", self.radius)
 
 
 class CoveragePlanner(Planner):
