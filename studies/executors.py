@@ -120,7 +120,8 @@ def probe_scheduler(address: str, timeout: float) -> dict[str, Any]:
     connections and never answers (a stuck process, a service that is not Dask) would hang a study
     forever. Here the connection, the handshake and the identity request run on an event loop of
     their own, in a daemon thread, under one deadline: a peer that is silent costs ``timeout``
-    seconds and nothing is left waiting on it that could hold up the process's exit.
+    seconds and nothing is left waiting on it that could hold up the process's exit. The client's own
+    connection follows at once, to a peer that has just answered.
 
     Raises
     ------
@@ -155,11 +156,13 @@ def probe_scheduler(address: str, timeout: float) -> dict[str, Any]:
 
 
 async def _identity(address: str, timeout: float) -> Any:
-    """Connect to ``address`` with Dask's comm, complete its handshake and ask for the identity."""
+    """Connect to ``address`` with Dask's comm, complete its handshake and ask for the identity (with
+    the connection arguments a client takes from Dask's configuration, such as TLS certificates)."""
     from distributed.comm import connect
     from distributed.core import send_recv
+    from distributed.security import Security
 
-    comm = await connect(address, timeout=timeout)
+    comm = await connect(address, timeout=timeout, **Security().get_connection_args("client"))
     try:
         return await send_recv(comm, op="identity", reply=True)
     finally:

@@ -494,6 +494,19 @@ def test_progress_bar_is_shown(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert "my study" in err and "4/4" in err
 
 
+def test_a_worker_that_dies_while_verifying_is_a_mismatch_not_a_traceback(tmp_path: Path) -> None:
+    schema = Schema({"seed": "int", "marker": "str"}, SCHEMA.values)
+    with ResultsFile(tmp_path / "squares.jsonl", schema, "squares", {}) as store:
+        for s in range(4):
+            store.append({"seed": s, "marker": "-"}, {"square": s * s, "root": math.sqrt(s)})
+    with WorkerPool(2) as pool:
+        _, mismatches = verify(TrialTable("squares", crash_always, schema), tmp_path, 4, executor=pool)
+    assert [(m.trial, m.column, m.stored) for m in mismatches] == [
+        ('{"marker":"-","seed":2}', "error_class", "")
+    ]
+    assert str(mismatches[0].fresh) == "WorkerCrashed"
+
+
 def test_verify_passes_on_fresh_results_and_names_a_tampered_row(tmp_path: Path) -> None:
     run_trials(COUNTED, [{"seed": s} for s in range(10)], tmp_path, progress=False)
     assert pick_evenly(10, 3) == [0, 4, 9] and pick_evenly(10, 1) == [5] and pick_evenly(2, 5) == [0, 1]
