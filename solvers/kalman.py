@@ -14,11 +14,27 @@ model with isotropic measurement noise. The covariance recursion is then run onc
 
 The loop over time is sequential (the filter is a recursion); the batch is vectorised, and the
 backward gains are computed for all steps at once after the forward pass.
+
+The process noise of the smoothed path (what the prior term ``1/2 sum ||L^-1 (x_t - F x_{t-1})||^2`` of
+the objective is made of) is not taken from the smoothed states: ``x_t - F x_{t-1}`` is a difference of
+nearly equal numbers whenever ``Q`` is tiny against the states (``q dt^5`` is 1e-23 at ``dt = 1e-3``),
+and it keeps none of its digits. It comes from the adjoint (Bryson-Frazier) recursion instead, ``v_t =
+Q rho_t`` with::
+
+    rho_{T+1} = 0,   rho_t = H' S_t^-1 e_t + (I - K_t H)' F' rho_{t+1}
+
+over the filter's innovations ``e_t``, their covariances ``S_t`` and gains ``K_t``: sums of terms of
+the size of the result, with no difference of states (``x_t|T = x_t|t-1 + P_t|t-1 rho_t``). The
+whitened noise ``L^-1 v_t = L' rho_t`` (``L L' = Q``) is what :class:`solvers.banded.BandedSmoother`
+takes from its multipliers; the objectives of the two agree to the rounding level at every ``dt`` a
+scenario accepts. Where ``I - K_t H`` has a diagonal entry ``1 - g`` with ``g`` close to 1 (a
+measurement far more precise than its prediction), that entry is formed as ``var / S_t`` instead.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -28,23 +44,44 @@ from solvers.problem import dense
 
 @dataclass
 class SmootherResult:
-    """Moments of the smoother. ``means`` is ``(B, T+1, n, K)`` and includes ``t = 0``."""
+    """Moments of the smoother. ``means`` is ``(B, T+1, n, K)`` and includes ``t = 0``.
+
+    :attr:`noise` and :attr:`prior` are formed on first use (a caller that reads the means pays for
+    neither).
+    """
 
     means: np.ndarray
     filtered_means: np.ndarray
     filtered_covs: np.ndarray
     predicted_covs: np.ndarray
+    _adjoint: tuple[np.ndarray, ...] = field(repr=False, compare=False)
+
+    @functools.cached_property
+    def noise(self) -> np.ndarray:
+        """``(B, T, n, K)`` whitened process noise ``u_t = L^-1 (x_t - F x_{t-1})`` of the smoothed path
+        (``L`` the lower Cholesky factor of ``Q``), from the adjoint recursion of the module docstring:
+        it keeps its relative precision when ``x_t - F x_{t-1}`` is far below ``x_t``."""
+        return _noise(*self._adjoint)
+
+    @functools.cached_property
+    def prior(self) -> np.ndarray:
+        """``(B, K)``: ``1/2 sum_t ||u_t||^2``, the prior term of the objective at the smoothed means."""
+        return np.asarray(0.5 * np.einsum("btik,btik->bk", self.noise, self.noise))
 
 
 @dataclass
 class _Filtered:
     """The forward pass, time-major: filtered and predicted moments, index ``t`` for ``t = 0..T``
-    (the predicted ones are unset at ``t = 0``)."""
+    (the predicted ones are unset at ``t = 0``), and for the adjoint recursion the whitened
+    innovations ``a_t = S_t^-1 e_t`` ``(T+1, B, p, K)`` and ``I - K_t H`` ``(T+1, B, n, n)`` (zero and
+    the identity where there is no measurement; unset at ``t = 0``)."""
 
     mf: np.ndarray
     Pf: np.ndarray
     mp: np.ndarray
     Pp: np.ndarray
+    a: np.ndarray
+    keep: np.ndarray
 
 
 def rts_smoother(
@@ -58,6 +95,9 @@ def rts_smoother(
     weight: np.ndarray,
 ) -> SmootherResult:
     """Smooth a batch of systems sharing ``F, Q, H, R``.
+
+    The result's :attr:`~SmootherResult.noise` and :attr:`~SmootherResult.prior` are the smoothed
+    path's whitened process noise and prior term, without cancellation (module docstring).
 
     Parameters
     ----------
@@ -83,18 +123,21 @@ def rts_smoother(
     # masked to zero, so the value only has to keep the arithmetic finite).
     scale = np.divide(1.0, weight, out=np.ones_like(weight), where=present).T
     B, n, K = x0.shape
+    p = H.shape[0]
     f = _Filtered(
         mf=np.empty((T + 1, B, n, K)),
         Pf=np.empty((T + 1, B, n, n)),
         mp=np.empty((T + 1, B, n, K)),
         Pp=np.empty((T + 1, B, n, n)),
+        a=np.empty((T + 1, B, p, K)),
+        keep=np.empty((T + 1, B, n, n)),
     )
     f.mf[0] = x0
     f.Pf[0] = P0
     # Time-major copies so each step reads contiguous memory.
     yt = np.ascontiguousarray(np.moveaxis(y, 1, 0))
     _forward(f, F, Q, H, R, scale, yt, present.T)
-    return _smooth(f, F)
+    return _smooth(f, F, Q, H)
 
 
 def _model(F: np.ndarray, Q: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -160,9 +203,11 @@ def _forward(
         S = H @ P @ HT + Rt
         gain = np.swapaxes(np.linalg.solve(S, H @ P), 1, 2)
         gain *= active[t - 1][:, None, None]
-        m = m + gain @ (yt[t - 1] - H @ m)
+        innov = yt[t - 1] - H @ m
+        f.a[t] = np.linalg.solve(S, innov) * active[t - 1][:, None, None]
+        m = m + gain @ innov
         # Joseph form keeps P symmetric positive semidefinite with tiny process noise.
-        IKH = eye - gain @ H
+        IKH = np.subtract(eye, gain @ H, out=f.keep[t])
         P = IKH @ P @ np.swapaxes(IKH, 1, 2) + gain @ Rt @ np.swapaxes(gain, 1, 2)
         f.mf[t] = m
         f.Pf[t] = P
@@ -189,21 +234,34 @@ def _forward_scalar(
     var = np.where(active, var, np.inf)
     picked = np.flatnonzero(h)
     unit = int(picked[0]) if picked.size == 1 and h[picked[0]] == 1.0 else None
-    for t in range(1, f.mf.shape[0]):
+    T, B, n = f.mf.shape[0] - 1, f.mf.shape[1], F.shape[0]
+    gains = np.empty((T + 1, B, n))
+    spreads = np.empty((T + 1, B))
+    for t in range(1, T + 1):
         m = np.matmul(F, m, out=f.mp[t])
         P = np.matmul(F @ P, FT, out=f.Pp[t])
         P += Q
         PH = P[:, :, unit] if unit is not None else P @ h  # (B, n)
         hPH = PH[:, unit] if unit is not None else PH @ h
-        gain = PH / (hPH + var[t - 1])[:, None]
+        spread = np.add(hPH, var[t - 1], out=spreads[t])  # S_t; infinite where there is no measurement
+        gain = np.divide(PH, spread[:, None], out=gains[t])
         innov = yt[t - 1, :, 0, :] - (m[:, unit, :] if unit is not None else h @ m)  # (B, K)
+        np.divide(innov, spread[:, None], out=f.a[t, :, 0, :])
         m_new = np.multiply(gain[:, :, None], innov[:, None, :], out=f.mf[t])
         m_new += m
         P_new = np.multiply(gain[:, :, None], PH[:, None, :], out=f.Pf[t])
         m, P = m_new, np.subtract(P, P_new, out=P_new)
+    # I - g h' for the adjoint recursion, all steps at once. Where h picks one component, that
+    # component's share kept is var / S, not 1 - hPh / S: when the measurement is far more precise
+    # than the prediction, g is 1 to within rounding and the difference would keep none of its digits.
+    keep = np.subtract(np.eye(n), gains[1:, :, :, None] * h, out=f.keep[1:])
+    if unit is not None:
+        share = np.ones((T, B))
+        np.divide(var, spreads[1:], out=share, where=active)
+        keep[:, :, unit, unit] = share
 
 
-def _smooth(f: _Filtered, F: np.ndarray) -> SmootherResult:
+def _smooth(f: _Filtered, F: np.ndarray, Q: np.ndarray, H: np.ndarray) -> SmootherResult:
     """The backward pass over the filtered moments; the result in batch-major layout."""
     T = f.mf.shape[0] - 1
     # Gains G_t = Pf_t F' Pp_{t+1}^-1 for all t at once: solve Pp_{t+1} G_t' = F Pf_t.
@@ -220,4 +278,25 @@ def _smooth(f: _Filtered, F: np.ndarray) -> SmootherResult:
         filtered_means=np.moveaxis(f.mf, 0, 1),
         filtered_covs=np.moveaxis(f.Pf, 0, 1),
         predicted_covs=np.moveaxis(f.Pp, 0, 1),
+        _adjoint=(F, Q, H, f.a, f.keep),
     )
+
+
+def _noise(F: np.ndarray, Q: np.ndarray, H: np.ndarray, a: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """``(B, T, n, K)`` whitened noise ``L' rho_t`` from the adjoint recursion (module docstring) over
+    the whitened innovations ``a (T+1, B, p, K)`` and ``keep = I - K H`` ``(T+1, B, n, n)`` of the
+    forward pass; :class:`ProblemError` when ``Q`` is not positive definite."""
+    try:
+        L = np.linalg.cholesky(Q)
+    except np.linalg.LinAlgError:
+        raise ProblemError("Q must be positive definite.") from None
+    T = a.shape[0] - 1
+    B, n, K = keep.shape[1], keep.shape[2], a.shape[3]
+    FT, HT, LT = F.T, H.T, L.T
+    keepT = np.swapaxes(keep, -1, -2)
+    rho = np.zeros((B, n, K))
+    noise = np.empty((T, B, n, K))
+    for t in range(T, 0, -1):
+        rho = keepT[t] @ (FT @ rho) + HT @ a[t]
+        np.matmul(LT, rho, out=noise[t - 1])
+    return np.moveaxis(noise, 0, 1)

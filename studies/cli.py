@@ -9,16 +9,23 @@ either runs the study or, with ``--verify K``, runs K stored trials again and co
 rows.
 
 Exit status: 0 done (or verified), 1 a verification mismatch, 2 a bad input or a failed study (the
-project's own error, one line), 130 interrupted (Ctrl-C; finished trials are kept).
+project's own error, one line), 3 done but some trials crashed their worker and have no result (they
+are listed on stderr, also under ``--quiet``; the same command runs them again), 130 interrupted
+(Ctrl-C; finished trials are kept).
+
+Warnings about the results (damaged lines, NaN results) are printed as one line each on stderr,
+``pmht-opt study: warning: ...``, not in Python's warning format.
 """
 
 from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
+import contextlib
 import importlib
 import sys
-from collections.abc import Sequence
+import warnings
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from types import ModuleType
 from typing import Any, NamedTuple, NoReturn
@@ -26,8 +33,9 @@ from typing import Any, NamedTuple, NoReturn
 from pmht_opt.exceptions import MissingDependencyError, PmhtOptError
 from studies.executors import local_executor
 from studies.options import RunOptions
+from studies.store import StudyWarning
 from studies.stored import verify
-from studies.trials import TrialTable
+from studies.trials import TrialTable, crash_log
 
 
 class Study(NamedTuple):
@@ -93,6 +101,7 @@ def build_parser(prog: str = "pmht-opt study") -> argparse.ArgumentParser:
 
 def run_verify(table: TrialTable, run: RunOptions, executor: cf.Executor | None = None) -> int:
     """``--verify K``: print what was compared and every mismatch; 1 when there is one."""
+    assert run.verify is not None
     rows, mismatches = verify(table, run.out, run.verify, executor=executor)
     skipped = {name: c.reason for name, c in table.checks.items() if c.kind == "skip"}
     close = {name: c for name, c in table.checks.items() if c.kind == "close"}
@@ -111,6 +120,28 @@ def run_verify(table: TrialTable, run: RunOptions, executor: cf.Executor | None 
     return 0
 
 
+#: Exit status of a study that finished with trials that crashed their worker.
+EXIT_CRASHED = 3
+
+
+@contextlib.contextmanager
+def one_line_warnings(prog: str) -> Iterator[None]:
+    """Show every :class:`~studies.store.StudyWarning` raised within as one line on stderr, ``PROG:
+    warning: MESSAGE`` (every time: two runs in one process warn twice); other warnings as before."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", StudyWarning)
+        shown = warnings.showwarning
+
+        def show(message: Warning | str, category: type[Warning], *args: Any, **kwargs: Any) -> None:
+            if issubclass(category, StudyWarning):
+                print(f"{prog}: warning: {message}", file=sys.stderr)
+            else:
+                shown(message, category, *args, **kwargs)
+
+        warnings.showwarning = show
+        yield
+
+
 def run_study(module: ModuleType, run: RunOptions, options: Any) -> list[Path]:
     """Run the study of ``module`` with its ``options``; the paths written.
 
@@ -123,7 +154,7 @@ def run_study(module: ModuleType, run: RunOptions, options: Any) -> list[Path]:
         return written
     out, rows = run.run_trials(module.TABLE, module.params(options))
     summary = module.summary(rows)
-    return run.publish(module.TABLE, out, summary, module.markdown(summary))
+    return run.publish(module.TABLE, out, summary, module.markdown(summary), rows=rows)
 
 
 def main(argv: Sequence[str] | None = None, prog: str = "pmht-opt study") -> int:
@@ -138,14 +169,15 @@ def main(argv: Sequence[str] | None = None, prog: str = "pmht-opt study") -> int
     try:
         run = RunOptions.from_args(ns)
         options = module.Options.from_args(ns)
-        if run.verify:
-            executor = getattr(module, "verify_executor", None)
-            ex = executor() if executor is not None else local_executor(1)
-            try:
-                return run_verify(module.TABLE, run, ex)
-            finally:
-                ex.shutdown(wait=False, cancel_futures=True)
-        written = run_study(module, run, options)
+        with one_line_warnings(prog), crash_log() as crashed:
+            if run.verify is not None:
+                executor = getattr(module, "verify_executor", None)
+                ex = executor() if executor is not None else local_executor(1)
+                try:
+                    return run_verify(module.TABLE, run, ex)
+                finally:
+                    ex.shutdown(wait=False, cancel_futures=True)
+            written = run_study(module, run, options)
     except PmhtOptError as err:
         print(f"{prog}: error: {err}", file=sys.stderr)
         return 2
@@ -157,6 +189,13 @@ def main(argv: Sequence[str] | None = None, prog: str = "pmht-opt study") -> int
         return 130
     for path in written:
         print(f"wrote: {path}")
+    if crashed:
+        print(
+            f"{prog}: {len(crashed)} of the trials crashed their worker and have no result (listed above); "
+            "run the same command to retry them.",
+            file=sys.stderr,
+        )
+        return EXIT_CRASHED
     return 0
 
 

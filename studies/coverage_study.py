@@ -251,7 +251,7 @@ def main(run: RunOptions, options: Options) -> list[Path]:
 
     out, rows = run.run_trials(TABLE, params(options))
     table = summary(rows, options.radii)
-    written = run.publish(TABLE, out, table, markdown(table))
+    written = run.publish(TABLE, out, table, markdown(table), rows=rows)
     return [*written, *write_figures(rows, options.radii, out)]
 
 

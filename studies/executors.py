@@ -8,9 +8,11 @@ refused before anything connects.
 
 from __future__ import annotations
 
+import asyncio
 import concurrent.futures as cf
 import contextlib
 import socket
+import threading
 from collections.abc import Callable, Iterator
 from typing import Any
 from urllib.parse import urlsplit
@@ -74,8 +76,10 @@ def dask_executor(
 ) -> Iterator[cf.Executor]:
     """An executor on a Dask cluster: the scheduler at ``address``, or a new ``LocalCluster(**cluster)``.
 
-    A malformed address fails at once; a well-formed one that does not answer within
-    ``connect_timeout`` seconds raises :class:`ConfigError`. Needs the ``dask`` extra.
+    A malformed address fails at once. A well-formed one must accept a connection, complete Dask's
+    handshake and answer an identity request as a scheduler, all within ``connect_timeout`` seconds
+    (:func:`probe_scheduler`); otherwise :class:`ConfigError` naming the address. Needs the ``dask``
+    extra.
     """
     try:
         from distributed import Client, LocalCluster
@@ -92,6 +96,7 @@ def dask_executor(
                 socket.create_connection((parts.hostname, parts.port), timeout=connect_timeout).close()
             except OSError as err:
                 raise ConfigError(f"--dask-scheduler {address}: cannot connect ({err}).") from None
+        probe_scheduler(address, connect_timeout)
     try:
         if address is None:
             local = LocalCluster(**cluster)
@@ -106,3 +111,59 @@ def dask_executor(
         client.close()
         if local is not None:
             local.close()
+
+
+def probe_scheduler(address: str, timeout: float) -> dict[str, Any]:
+    """The identity of the Dask scheduler at ``address``, asked for within ``timeout`` seconds.
+
+    Dask's own connection waits for the peer's handshake without a time limit, so a port that accepts
+    connections and never answers (a stuck process, a service that is not Dask) would hang a study
+    forever. Here the connection, the handshake and the identity request run on an event loop of
+    their own, in a daemon thread, under one deadline: a peer that is silent costs ``timeout``
+    seconds and nothing is left waiting on it that could hold up the process's exit. The client's own
+    connection follows at once, to a peer that has just answered.
+
+    Raises
+    ------
+    ConfigError
+        Naming the address: no answer in time, the connection failed, or the peer is not a scheduler.
+    """
+    outcome: dict[str, Any] = {}
+    done = threading.Event()
+
+    def ask() -> None:
+        try:
+            outcome["identity"] = asyncio.run(asyncio.wait_for(_identity(address, timeout), timeout))
+        except BaseException as err:  # reported to the caller, who words it
+            outcome["error"] = err
+        finally:
+            done.set()
+
+    threading.Thread(target=ask, name="dask-probe", daemon=True).start()
+    if not done.wait(timeout + 1.0) or isinstance(outcome.get("error"), (TimeoutError, asyncio.TimeoutError)):
+        raise ConfigError(
+            f"--dask-scheduler {address}: no answer from a Dask scheduler within {timeout:g} s "
+            "(the port accepts connections but does not speak Dask's protocol)."
+        )
+    err = outcome.get("error")
+    if err is not None:
+        raise ConfigError(f"--dask-scheduler {address}: cannot connect ({type(err).__name__}: {err}).")
+    identity: dict[str, Any] = outcome["identity"]
+    if not isinstance(identity, dict) or identity.get("type") != "Scheduler":
+        kind = identity.get("type") if isinstance(identity, dict) else type(identity).__name__
+        raise ConfigError(f"--dask-scheduler {address}: answers as {kind!r}, not as a Dask scheduler.")
+    return identity
+
+
+async def _identity(address: str, timeout: float) -> Any:
+    """Connect to ``address`` with Dask's comm, complete its handshake and ask for the identity (with
+    the connection arguments a client takes from Dask's configuration, such as TLS certificates)."""
+    from distributed.comm import connect
+    from distributed.core import send_recv
+    from distributed.security import Security
+
+    comm = await connect(address, timeout=timeout, **Security().get_connection_args("client"))
+    try:
+        return await send_recv(comm, op="identity", reply=True)
+    finally:
+        comm.abort()

@@ -218,7 +218,9 @@ class RunOptions:
     quiet
         No progress bar and no printed tables.
     verify
-        Instead of running the study, run this many stored trials again and compare them with their rows.
+        Instead of running the study, run this many stored trials again and compare them with their rows
+        (``None``: run the study; a count must be positive, since ``--verify 0`` would otherwise read
+        as "do not verify" and run the study, appending to the results it was asked to check).
     tables_only
         Run no trial: write the summaries, tables and figures from the rows already stored (the study's
         trials that have none are left out, and said so).
@@ -229,17 +231,18 @@ class RunOptions:
     dask_scheduler: str | None = None
     fresh: bool = False
     quiet: bool = False
-    verify: int = 0
+    verify: int | None = None
     tables_only: bool = False
 
     def __post_init__(self) -> None:
         positive_int("--workers", self.workers)
-        positive_int("--verify", self.verify, minimum=0)
+        if self.verify is not None:
+            positive_int("--verify", self.verify)
         if self.dask_scheduler is not None:
             object.__setattr__(self, "dask_scheduler", check_dask_address(self.dask_scheduler))
-        if self.verify and self.fresh:
+        if self.verify is not None and self.fresh:
             raise ConfigError("--verify compares with the stored results; it cannot be used with --fresh.")
-        if self.tables_only and (self.fresh or self.verify):
+        if self.tables_only and (self.fresh or self.verify is not None):
             raise ConfigError(
                 "--tables-only reads the stored results; it cannot be used with --fresh or --verify."
             )
@@ -260,9 +263,10 @@ class RunOptions:
         p.add_argument(
             "--verify",
             type=int,
-            default=0,
+            default=None,
             metavar="K",
-            help="run K stored trials again and compare them with their rows instead of running the study",
+            help="run K (at least 1) stored trials again and compare them with their rows instead of "
+            "running the study",
         )
         p.add_argument(
             "--tables-only",
@@ -311,15 +315,31 @@ class RunOptions:
         return out, rows
 
     def publish(
-        self, table: TrialTable, out: Path, summary: Sequence[Any], text: str, header: str = ""
+        self,
+        table: TrialTable,
+        out: Path,
+        summary: Sequence[Any],
+        text: str,
+        header: str = "",
+        *,
+        rows: Sequence[Mapping[str, Any]] = (),
     ) -> list[Path]:
         """Print the markdown ``text`` (unless quiet) and write the summary files of ``table``
-        (:func:`studies.report.write_summary`); the paths of the results file and of those written."""
+        (:func:`studies.report.write_summary`); the paths of the results file and of those written.
+
+        The NaN results among ``rows`` (the rows the summary was made from) that the schema does not
+        expect are listed below the table and in the summary's ``nan_results``: the summary's means
+        and medians leave them out, which the table must say.
+        """
         # pandas comes with the report: imported only once a study has run, so that a missing extra is
         # reported by the command, not by an import.
-        from studies.report import write_summary
+        from studies.report import nan_note, write_summary
 
         extra: dict[str, Any] = {}
+        flagged = [(r["trial"], c) for r in rows for c in table.schema.nan_columns(r)]
+        if flagged:
+            text += "\n\n" + nan_note(flagged)
+            extra["nan_results"] = [{"trial": t, "column": c} for t, c in flagged]
         if self.tables_only:
             header = (
                 f"Written with --tables-only from the stored rows of {table.path(out).name}; the runs "

@@ -69,6 +69,17 @@ def markdown_table(columns: Columns, rows: Iterable[Mapping[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def nan_note(flagged: Sequence[tuple[str, str]]) -> str:
+    """The paragraph under a study's table that lists its NaN results, ``(trial, column)`` each."""
+    lines = [
+        f"**NaN results** ({len(flagged)}; left out of the means and medians above, kept in the "
+        "results file):",
+        "",
+    ]
+    lines += [f"- trial `{trial}`: column `{column}`" for trial, column in flagged]
+    return "\n".join(lines)
+
+
 def write_text(path: Path, text: str) -> Path:
     """Write ``text`` to ``path``, creating missing folders; return the path written."""
     path = Path(path)

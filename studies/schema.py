@@ -8,6 +8,7 @@ never a result.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -78,10 +79,16 @@ class Schema:
         The parameters of a trial (all required): they make its id.
     values
         What the trial function returns, e.g. ``{"distance": "float", "paths": "list?"}``.
+    not_measured
+        Result columns in which NaN is a value the study writes on purpose, meaning "not measured",
+        with the reason (a backend that failed has no time). A NaN anywhere else is flagged when it is
+        written and read (:meth:`nan_columns`): a mean or median leaves it out, so it must not pass
+        unseen. The reading policy of the study, not part of the file's header.
     """
 
     params: Mapping[str, str]
     values: Mapping[str, str]
+    not_measured: Mapping[str, str] = field(default_factory=dict)
     columns: dict[str, Column] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -95,6 +102,20 @@ class Schema:
                     raise ConfigError(f"schema params: {name!r} must be required (it is part of the id).")
                 cols[name] = col
         object.__setattr__(self, "columns", cols)
+        for name, reason in self.not_measured.items():
+            if name not in self.values or cols[name].type != "float" or not reason:
+                raise ConfigError(f"schema not_measured: {name!r} must be a float result, with a reason.")
+
+    def nan_columns(self, values: Mapping[str, Any]) -> list[str]:
+        """The result columns of ``values`` that hold NaN where NaN does not mean "not measured"."""
+        return [
+            name
+            for name, value in values.items()
+            if name in self.values
+            and name not in self.not_measured
+            and isinstance(value, float)
+            and math.isnan(value)
+        ]
 
     def to_json(self) -> dict[str, dict[str, str]]:
         """The schema as stored in a file's header."""

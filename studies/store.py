@@ -20,7 +20,15 @@ On load every line is checked: a truncated line, NUL bytes (what a file system l
 a column missing, unknown, mistyped or empty where the schema requires a value, or a trial id that does
 not match the row's own parameters. Each damaged line is reported as a :class:`DamagedRowWarning` naming
 the line, the trial (where it can be told) and the field; it is dropped, so its trial runs again, and
-every valid row is kept. Nothing ever needs starting afresh to recover.
+every valid row is kept. A damaged or lost header is damage like any other (a correct one is written
+again), provided the file is evidently this project's: a file with nothing of this project in it is
+refused by name and never overwritten, not even to start afresh. Nothing ever needs starting afresh to
+recover.
+
+A NaN in a result column is kept but flagged as a :class:`NaNResultWarning` naming the trial and the
+column, when it is written and whenever it is read, unless the schema declares that column's NaN to mean
+"not measured" (:attr:`Schema.not_measured`): summaries leave NaN out of their means and medians, so it
+must not pass unseen.
 """
 
 from __future__ import annotations
@@ -31,7 +39,7 @@ import re
 import time
 import warnings
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
@@ -50,8 +58,19 @@ VERSION = 1
 FSYNC_INTERVAL = 1.0
 
 
-class DamagedRowWarning(UserWarning):
-    """A line of a results file that is not a complete, valid row; its trial is run again."""
+class StudyWarning(UserWarning):
+    """A problem with stored or returned results that the run survives (the study command shows it as
+    one line of its own on stderr)."""
+
+
+class DamagedRowWarning(StudyWarning):
+    """A line of a results file that is not a complete, valid row (its trial is run again), or a
+    damaged header (a correct one is written)."""
+
+
+class NaNResultWarning(StudyWarning):
+    """A result column holding NaN where the schema does not say that NaN means "not measured"; the
+    row is kept, and the study's table lists it."""
 
 
 def _dumps(record: Mapping[str, Any]) -> bytes:
@@ -76,30 +95,74 @@ def _trial_of(text: str) -> str | None:
 
 @dataclass
 class Loaded:
-    """What :func:`load` found in a results file."""
+    """What :func:`load` found in a results file; ``nan`` lists the ``(trial, column)`` of NaN results
+    the schema does not expect (:meth:`Schema.nan_columns`)."""
 
     rows: dict[str, Row]
     runs: list[dict[str, Any]]
     damaged: list[str]
     clean: bool
+    nan: list[tuple[str, str]] = field(default_factory=list)
+
+
+@dataclass
+class _Line:
+    """One line of a results file: its number, its text, and the JSON object it holds (``None`` with
+    ``problem`` saying why when it holds none)."""
+
+    number: int
+    text: str
+    record: dict[str, Any] | None
+    problem: str = ""
+
+
+def _parse(raw: bytes) -> list[_Line]:
+    lines = raw.split(b"\n")
+    if lines and lines[-1] == b"":
+        lines.pop()
+    out = []
+    for number, line in enumerate(lines, start=1):
+        text = line.decode("utf-8", errors="replace")
+        if "\x00" in text:
+            out.append(_Line(number, text, None, "NUL bytes"))
+        elif not text.strip():
+            out.append(_Line(number, text, None, "empty line"))
+        else:
+            try:
+                record = json.loads(text)
+            except ValueError:
+                out.append(_Line(number, text, None, "truncated or not JSON"))
+                continue
+            if isinstance(record, dict):
+                out.append(_Line(number, text, record))
+            else:
+                out.append(_Line(number, text, None, "not a JSON object"))
+    return out
 
 
 def load(path: Path, schema: Schema, study: str) -> Loaded:
     """The valid rows of a results file (the last row of each trial wins), its runs and its damage.
 
-    Every damaged line is reported as a :class:`DamagedRowWarning` and left out. ``clean`` is false when
-    the file should be rewritten before appending (damage, superseded rows, or no final newline).
+    Every damaged line is reported as a :class:`DamagedRowWarning` and left out; so is a damaged or
+    missing header, as long as the file is evidently a results file of this project (:func:`_header`),
+    and every NaN result the schema does not expect as a :class:`NaNResultWarning` (the row is kept).
+    ``clean`` is false when the file should be rewritten before appending (damage, superseded rows, a
+    header to write again, or no final newline).
+
+    Raises
+    ------
+    ConfigError
+        Naming the file: it holds another study's results, or it is not a results file of this project
+        (nothing in it is: a foreign file is never taken for a damaged one, so it is never overwritten).
     """
     rows: dict[str, Row] = {}
     runs: list[dict[str, Any]] = []
     damaged: list[str] = []
+    nan: list[tuple[str, str]] = []
     raw = path.read_bytes()
-    lines = raw.split(b"\n")
+    lines = _parse(raw)
     ends_cleanly = raw.endswith(b"\n") or not raw
-    if lines and lines[-1] == b"":
-        lines.pop()
     superseded = False
-    stale_header = True
 
     def report(number: int, trial: str | None, where: str, problem: str) -> None:
         who = f"trial {trial}" if trial else "trial unknown"
@@ -107,48 +170,94 @@ def load(path: Path, schema: Schema, study: str) -> Loaded:
         damaged.append(message)
         warnings.warn(message, DamagedRowWarning, stacklevel=3)
 
-    for number, line in enumerate(lines, start=1):
-        text = line.decode("utf-8", errors="replace")
-        if "\x00" in text:
-            report(number, _trial_of(text), "line", "NUL bytes")
-            continue
-        if not text.strip():
-            report(number, None, "line", "empty line")
-            continue
-        try:
-            record = json.loads(text)
-        except ValueError:
-            report(number, _trial_of(text), "line", "truncated or not JSON")
-            continue
-        if not isinstance(record, dict):
-            report(number, None, "line", "not a JSON object")
-            continue
-        kind = record.get("record")
-        if number == 1:
-            _check_header(path, record, study)
-            stale_header = record.get("schema") != schema.to_json()
+    header_problem, stale_header = _header(path, raw, lines, schema, study)
+    if header_problem:
+        message = f"{path}:1: header: {header_problem}; a correct header is written and every valid row kept."
+        damaged.append(message)
+        warnings.warn(message, DamagedRowWarning, stacklevel=2)
+    for line in lines:
+        record = line.record
+        kind = record.get("record") if record is not None else None
+        if line.number == 1 and kind not in ("run", "row"):
+            continue  # the header, or what is left of it (reported above)
+        if record is None:
+            report(line.number, _trial_of(line.text), "line", line.problem)
             continue
         if kind == "run":
             runs.append(record)
             continue
         if kind != "row":
-            report(number, _trial_of(text), "record", f"unknown record {kind!r}")
+            report(line.number, _trial_of(line.text), "record", f"unknown record {kind!r}")
             continue
         problem = schema.row_problem(record)
         if problem is not None:
             trial = record.get("trial") if isinstance(record.get("trial"), str) else None
-            report(number, trial, *problem)
+            report(line.number, trial, *problem)
             continue
+        for column in schema.nan_columns(record):
+            nan.append((record["trial"], column))
+            warnings.warn(
+                f"{path}:{line.number}: trial {record['trial']}: column {column}: NaN result "
+                "(kept, and listed in the study's table).",
+                NaNResultWarning,
+                stacklevel=2,
+            )
         superseded |= record["trial"] in rows
         rows[record["trial"]] = record
-    return Loaded(rows, runs, damaged, clean=not (damaged or superseded or stale_header) and ends_cleanly)
+    clean = not (damaged or superseded or stale_header) and ends_cleanly
+    return Loaded(rows, runs, damaged, clean=clean, nan=nan)
 
 
-def _check_header(path: Path, record: Mapping[str, Any], study: str) -> None:
-    if record.get("record") != "header" or record.get("format") != FORMAT:
-        raise ConfigError(f"{path}: not a results file of this project (no header on line 1).")
-    if record.get("study") != study:
-        raise ConfigError(f"{path}: holds study {record.get('study')!r}, not {study!r}.")
+def _header(path: Path, raw: bytes, lines: list[_Line], schema: Schema, study: str) -> tuple[str, bool]:
+    """What is wrong with the header on line 1 (``""`` when nothing is) and whether it declares another
+    schema than ``schema`` (then the file is written again with the current one).
+
+    A damaged or missing header is recoverable when the file is evidently this project's results file
+    (:func:`_ours`): the rows and runs are read as usual and a correct header is written. A header of
+    another study, or a file with nothing of this project in it, raises :class:`ConfigError`.
+    """
+    first = lines[0].record if lines else None
+    if first is not None and first.get("record") == "header":
+        if first.get("format") not in (FORMAT, None):
+            raise ConfigError(
+                f"{path}: not a results file of this project (format {first.get('format')!r}); "
+                "it is left as it is: move it away or choose another --out."
+            )
+        found = first.get("study")
+        if isinstance(found, str) and found != study:
+            raise ConfigError(f"{path}: holds study {found!r}, not {study!r}.")
+        if first.get("format") == FORMAT and found == study:
+            return "", first.get("schema") != schema.to_json()
+        problem = "incomplete (no format or study)"
+    elif first is not None and first.get("record") in ("run", "row"):
+        problem = "missing (line 1 is a record of the table)"
+    elif not lines:
+        problem = "missing (the file is empty)"
+    else:
+        problem = lines[0].problem or "not a header"
+    if not _ours(raw, lines, schema):
+        raise ConfigError(
+            f"{path}: not a results file of this project (line 1: {problem}, and no line is a run or a "
+            "row of this table); it is left as it is: move it away or choose another --out."
+        )
+    return problem, True
+
+
+def _ours(raw: bytes, lines: list[_Line], schema: Schema) -> bool:
+    """Whether a file whose header is damaged is this project's results file: it names the format,
+    holds a run record or a valid row, or holds nothing but NUL bytes and blank space (what a power cut
+    leaves; rewriting it loses nothing)."""
+    if FORMAT.encode() in raw.replace(b"\x00", b"") or not raw.replace(b"\x00", b"").strip():
+        return True
+    for line in lines:
+        record = line.record
+        if record is None:
+            continue
+        if record.get("record") == "run" and isinstance(record.get("provenance"), dict):
+            return True
+        if record.get("record") == "row" and schema.row_problem(record) is None:
+            return True
+    return False
 
 
 class ResultsFile:
@@ -177,7 +286,12 @@ class ResultsFile:
         if resume and self.path.exists():
             loaded = load(self.path, schema, study)
             self.rows, runs, self.damaged, clean = loaded.rows, loaded.runs, loaded.damaged, loaded.clean
-        self.run = 1 + max((int(r.get("run", 0)) for r in runs), default=0)
+        elif self.path.exists():
+            # Starting afresh discards this table's rows, never a file that is not this table's.
+            raw = self.path.read_bytes()
+            _header(self.path, raw, _parse(raw), schema, study)
+        numbers = [r["run"] for r in runs if isinstance(r.get("run"), int) and not isinstance(r["run"], bool)]
+        self.run = 1 + max(numbers, default=0)
         if not resume or not self.path.exists() or not clean:
             self._rewrite(runs)
         self._fh: IO[bytes] = open(self.path, "ab")  # closed in close()
@@ -222,6 +336,13 @@ class ResultsFile:
             row.update(error_class=error_class, error=_message(error or error_class), **params)
         else:
             row.update(error_class="", error="", **params, **self.schema.normalise(values or {}))
+            for column in self.schema.nan_columns(row):
+                warnings.warn(
+                    f"{self.path}: trial {row['trial']}: column {column}: the trial returned NaN "
+                    "(kept, and listed in the study's table).",
+                    NaNResultWarning,
+                    stacklevel=2,
+                )
         self._write(row)
         if time.monotonic() - self._last_sync >= FSYNC_INTERVAL:
             self._sync()

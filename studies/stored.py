@@ -18,7 +18,7 @@ from typing import Any
 from pmht_opt.exceptions import ConfigError
 from studies.executors import InlineExecutor
 from studies.store import Row, load, trial_id
-from studies.trials import Check, TrialError, TrialTable, call_trial, public_row
+from studies.trials import CRASHED, Check, TrialError, TrialTable, call_trial, public_row
 
 
 def stored_rows(table: TrialTable, trials: Sequence[Mapping[str, Any]], out_dir: str | Path) -> list[Row]:
@@ -100,7 +100,10 @@ def verify(
     futures = [ex.submit(call_trial, table.fn, {n: r[n] for n in table.schema.params}) for r in chosen]
     mismatches: list[Mismatch] = []
     for row, fut in zip(chosen, futures, strict=True):
-        out = fut.result()
+        try:
+            out = fut.result()
+        except Exception as err:  # the worker died: the trial has no result to compare
+            out = TrialError(CRASHED, f"{type(err).__name__}: {err}")
         if isinstance(out, TrialError) or row["error_class"]:
             fresh_class = out.error_class if isinstance(out, TrialError) else ""
             if fresh_class != row["error_class"]:

@@ -341,7 +341,7 @@ def main(run: RunOptions, options: Options) -> list[Path]:
     table = summary(rows)
     n = options.trials
     header = f"Table 1 over {n} trials per scenario (seeds 0..{n - 1}); the paper: 100 trials.\n\n"
-    written = run.publish(TABLE, out, table, markdown(table), header)
+    written = run.publish(TABLE, out, table, markdown(table), header, rows=rows)
     if options.figures:
         written += figures(out, rows, list(options.methods))
     return written

@@ -26,12 +26,14 @@ randomness only from the seeds in their parameters.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import inspect
 import math
 import queue
 import sys
 import typing
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -55,6 +57,26 @@ RETRYABLE = frozenset(
 )
 #: How many times a trial whose worker died is run again within one run before it is recorded as a crash.
 RETRIES = 2
+#: The error class of a trial whose worker died on every run: it has no result, and a run that leaves
+#: one says so on stderr (even under ``--quiet``) and in the study command's exit status.
+CRASHED = "WorkerCrashed"
+
+_CRASH_LOG: ContextVar[list[Row] | None] = ContextVar("crash_log", default=None)
+
+
+@contextlib.contextmanager
+def crash_log() -> Iterator[list[Row]]:
+    """Collect the rows of the trials that crashed their worker in every :func:`run_trials` within.
+
+    The study command runs a study inside one, whatever the study's own code looks like, and turns a
+    non-empty log into its exit status: a crash must not pass for a finished study.
+    """
+    log: list[Row] = []
+    token = _CRASH_LOG.set(log)
+    try:
+        yield log
+    finally:
+        _CRASH_LOG.reset(token)
 
 
 @dataclass(frozen=True)
@@ -268,7 +290,32 @@ def run_trials(
             bar.close()
             if own:
                 ex.shutdown(wait=False, cancel_futures=True)
-        return [public_row(store.rows[k]) for k in ids]
+        rows = [public_row(store.rows[k]) for k in ids]
+    crashed = [public_row(store.rows[k]) for k in unique if store.rows[k]["error_class"] == CRASHED]
+    if crashed:
+        _report_crashes(label or table.name, path, crashed)
+    return rows
+
+
+def _trials(n: int) -> str:
+    return f"{n} trial" if n == 1 else f"{n} trials"
+
+
+def _report_crashes(label: str, path: Path, crashed: Sequence[Row]) -> None:
+    """Say on stderr which trials crashed their worker (not a progress message: shown under --quiet),
+    and add them to the active :func:`crash_log`."""
+    log = _CRASH_LOG.get()
+    if log is not None:
+        log.extend(crashed)
+    print(
+        f"{label}: {_trials(len(crashed))} crashed their worker and have no result in {path} "
+        "(run the same command to retry them):",
+        file=sys.stderr,
+    )
+    for row in crashed[:10]:
+        print(f"  trial {row['trial']}: {row['error']}", file=sys.stderr)
+    if len(crashed) > 10:
+        print(f"  and {len(crashed) - 10} more (error_class {CRASHED} in the results file)", file=sys.stderr)
 
 
 def public_row(row: Mapping[str, Any]) -> Row:
@@ -325,7 +372,7 @@ def _run_parallel(
     def record_crash(key: str, err: BaseException) -> None:
         runs = attempts.get(key, 0)
         message = f"{type(err).__name__}: {err}" + (f" (on each of {runs} runs)" if runs > 1 else "")
-        _record(store, by_id[key], TrialError("WorkerCrashed", message), bar)
+        _record(store, by_id[key], TrialError(CRASHED, message), bar)
 
     try:
         for key in todo:

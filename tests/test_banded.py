@@ -245,6 +245,22 @@ def test_generic_model_matches_rts() -> None:
     np.testing.assert_allclose(res.means, ref, rtol=0, atol=1e-11)
 
 
+@pytest.mark.parametrize("dt", [1e-3, 3e-3, 0.1, 1.0, 10.0])
+@pytest.mark.parametrize("r", [1e-2, 1.0])
+def test_rts_objective_equals_the_exact_smoothers_at_every_dt(dt: float, r: float) -> None:
+    """The prior term of ``rts_smoother`` comes from its adjoint recursion, not from differences of
+    smoothed states (which lose every digit once ``q dt^5`` is far below the positions), so its
+    process noise and objective are the banded smoother's, taken from the multipliers."""
+    rng = np.random.default_rng(11)
+    F, Q = ca_model(dt, 1e-8)
+    for kind in ("random", "coast"):
+        W, y, x0 = make_batch(rng, 3, 120, kind=kind)
+        exact = banded_smoother(F, Q, E1, r, x0, y, W)
+        res = rts_smoother(F, Q, E1[None], np.array([[r]]), x0, np.zeros((3, 3, 3)), y[:, :, None, :], W)
+        objective = res.prior + exact.fit  # the fit term is the same for paths equal to 1e-14
+        np.testing.assert_allclose(objective, exact.objective, rtol=1e-9, atol=0)
+
+
 # -- independent references ---------------------------------------------------------------------
 
 

@@ -201,6 +201,28 @@ def test_rts_matches_dense_least_squares(rng: np.random.Generator) -> None:
     np.testing.assert_allclose(res.means[0, 0, :, 0], x0)
 
 
+@pytest.mark.parametrize("H", [[[1.0, 0.0]], [[0.6, -0.8]], [[1.0, 0.0], [0.3, 1.0]]])
+def test_rts_noise_is_the_whitened_difference_of_its_means(rng: np.random.Generator, H: list) -> None:
+    """With a process noise of the states' size (nothing cancels), the noise of the adjoint recursion
+    is ``L^-1 (x_t - F x_{t-1})`` of the smoothed means, for a picked component, a mixed scalar
+    measurement and a vector one."""
+    T, K = 15, 2
+    F = np.array([[1.0, 0.5], [0.0, 1.0]])
+    Q = np.array([[0.3, 0.1], [0.1, 0.2]])
+    Hm = np.array(H)
+    p = Hm.shape[0]
+    x0 = rng.normal(size=(2, 2, K))
+    y = rng.normal(size=(2, T, p, K))
+    w = rng.uniform(0.2, 2.0, size=(2, T))
+    w[:, [3, 4, 9]] = 0.0
+    res = rts_smoother(F, Q, Hm, 0.5 * np.eye(p), x0, np.zeros((2, 2, 2)), y, w)
+    means = res.means
+    diff = means[:, 1:] - np.einsum("ij,btjk->btik", F, means[:, :-1])
+    expected = np.linalg.solve(np.linalg.cholesky(Q), diff)
+    np.testing.assert_allclose(res.noise, expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(res.prior, 0.5 * np.einsum("btik,btik->bk", expected, expected), rtol=1e-12)
+
+
 def test_rts_rejects_bad_shapes() -> None:
     with pytest.raises(solvers.ProblemError, match="weight has shape"):
         rts_smoother(

@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+import contextlib
+import importlib.util
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
+import probe_study
 import pytest
 
 from pmht_opt.cli import main
@@ -142,6 +147,8 @@ def test_anneal_summary_counts() -> None:
         (["table1", "--workers", "0"], "--workers"),
         (["anneal", "--trials", "0"], "--trials"),
         (["anneal", "--verify", "-1"], "--verify"),
+        # 0 is not "do not verify": it used to run (and append to) the study it was asked to check.
+        (["anneal", "--trials", "1", "--configs", "plain", "--horizon", "20", "--verify", "0"], "--verify"),
         (["solvers", "--seeds", "-1"], "--seeds"),
         (["solvers", "--iterations", "0"], "--iterations"),
         (["scaling", "--quick", "--reps", "0"], "--reps"),
@@ -265,3 +272,120 @@ def test_stress_trials_time_their_slowest_mstep() -> None:
     # Named by a pre-check before any M-step: nothing to time.
     precheck = trial("L", "speed-1e-4+visit-0.05", "clarabel")
     assert precheck["outcome"] == "infeasible" and precheck["slowest_mstep"] is None
+
+
+TESTS = Path(__file__).resolve().parent
+ROOT = TESTS.parent
+#: Runs the study command in a fresh interpreter with the probe study (tests/probe_study.py) registered.
+COMMAND = (
+    f"import sys; sys.path.insert(0, {str(TESTS)!r})\n"
+    "from studies import cli\n"
+    "cli.STUDIES['probe'] = cli.Study('probe_study', 'the study command itself')\n"
+    "sys.exit(cli.main(sys.argv[1:]))"
+)
+
+
+@pytest.fixture
+def probe(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The probe study (tests/probe_study.py) as ``pmht-opt study probe``."""
+    from studies import cli
+
+    monkeypatch.setitem(cli.STUDIES, "probe", cli.Study("probe_study", "the study command itself"))
+
+
+def test_a_crashed_trial_is_reported_and_fails_the_exit_status_under_quiet(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], probe: None
+) -> None:
+    argv = ["study", "probe", "--mode", "crash", "--workers", "2", "--quiet", "--out", str(tmp_path)]
+    assert main(argv) == 3
+    err = capsys.readouterr().err
+    assert "probe: 1 trial crashed their worker" in err and 'trial {"mode":"crash","seed":2}' in err
+    assert "signal 9" in err and err.strip().splitlines()[-1].endswith("run the same command to retry them.")
+    rows = read_rows(tmp_path / "probe.jsonl", probe_study.TABLE.schema, "probe")
+    assert {r["seed"]: r["error_class"] for r in rows} == {0: "", 1: "", 2: "WorkerCrashed", 3: ""}
+    assert (tmp_path / "probe.md").read_text().startswith("finished: 3")
+
+
+def test_nan_results_are_flagged_by_trial_and_column(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], probe: None
+) -> None:
+    argv = ["study", "probe", "--mode", "nan", "--quiet", "--out", str(tmp_path)]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    trial = '{"mode":"nan","seed":1}'
+    path = tmp_path / "probe.jsonl"
+    assert f"pmht-opt study: warning: {path}: trial {trial}: column square: the trial returned NaN" in err
+    table = (tmp_path / "probe.md").read_text()
+    assert "**NaN results** (1;" in table and f"- trial `{trial}`: column `square`" in table
+    summary = json.loads((tmp_path / "probe_summary.json").read_text())
+    assert summary["nan_results"] == [{"trial": trial, "column": "square"}]
+    # Stored, it is flagged again whenever it is read.
+    assert main(argv) == 0
+    assert f"probe.jsonl:4: trial {trial}: column square: NaN result" in capsys.readouterr().err
+
+
+def test_damage_is_reported_in_one_line_of_the_projects_own(tmp_path: Path) -> None:
+    argv = ["probe", "--quiet", "--out", str(tmp_path)]
+    done = subprocess.run([sys.executable, "-c", COMMAND, *argv], capture_output=True, text=True, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    path = tmp_path / "probe.jsonl"
+    lines = path.read_text().splitlines(keepends=True)
+    lines[0] = lines[0][:25] + "\n"  # the header cut
+    lines[3] = lines[3].replace('"square":1.0', '"square":"1"')
+    path.write_text("".join(lines))
+    done = subprocess.run([sys.executable, "-c", COMMAND, *argv], capture_output=True, text=True, cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    warned = [line for line in done.stderr.splitlines() if "warning" in line.lower()]
+    assert warned == [
+        f"pmht-opt study: warning: {path}:1: header: truncated or not JSON; a correct header is written "
+        "and every valid row kept.",
+        f'pmht-opt study: warning: {path}:4: trial {{"mode":"plain","seed":1}}: square: expected float, '
+        "got str; the row is dropped and its trial runs again.",
+    ]
+    assert "Warning:" not in done.stderr and ".py:" not in done.stderr
+
+
+def test_a_foreign_file_at_the_results_path_is_refused_not_overwritten(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], probe: None
+) -> None:
+    path = tmp_path / "probe.jsonl"
+    path.write_text("name,value\nalpha,1\n")
+    for extra in ([], ["--fresh"]):
+        assert main(["study", "probe", "--quiet", "--out", str(tmp_path), *extra]) == 2
+        err = capsys.readouterr().err
+        assert f"{path}: not a results file of this project" in err and len(err.strip().splitlines()) == 1
+        assert path.read_text() == "name,value\nalpha,1\n"
+
+
+def test_a_silent_dask_scheduler_fails_within_seconds_naming_it(tmp_path: Path) -> None:
+    """A port that accepts connections and never answers: Dask itself would wait for its handshake
+    forever; the study stops within seconds with the project's error naming the address."""
+    if importlib.util.find_spec("distributed") is None:
+        pytest.skip("the dask extra is not installed")
+    server = socket.create_server(("127.0.0.1", 0))
+    accepted: list[socket.socket] = []
+
+    def accept() -> None:
+        with contextlib.suppress(OSError):
+            while True:
+                accepted.append(server.accept()[0])
+
+    threading.Thread(target=accept, daemon=True).start()
+    address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    argv = ["probe", "--quiet", "--out", str(tmp_path), "--dask-scheduler", address]
+    started = time.perf_counter()
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", COMMAND, *argv], capture_output=True, text=True, cwd=ROOT, timeout=60
+        )
+    finally:
+        server.close()
+        for conn in accepted:
+            conn.close()
+    assert accepted  # the port really accepted the connection
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip() == (
+        f"pmht-opt study: error: --dask-scheduler {address}: no answer from a Dask scheduler within 5 s "
+        "(the port accepts connections but does not speak Dask's protocol)."
+    )
+    assert time.perf_counter() - started < 20

@@ -23,7 +23,15 @@ import pytest
 import pmht_opt as po
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from studies.pool import WorkerPool
-from studies.store import DamagedRowWarning, ResultsFile, Schema, load, read_rows, trial_id
+from studies.store import (
+    DamagedRowWarning,
+    NaNResultWarning,
+    ResultsFile,
+    Schema,
+    load,
+    read_rows,
+    trial_id,
+)
 from studies.stored import pick_evenly, verify
 from studies.trials import (
     Check,
@@ -93,11 +101,18 @@ def test_round_trip_keeps_types_and_provenance(tmp_path: Path) -> None:
     )
     with ResultsFile(tmp_path / "t.jsonl", schema, "t", {"commit": "abc"}) as store:
         store.append({"kind": "A", "seed": 1}, {"x": 3, "n": 2, "ok": True, "xs": (1, 2), "d": {"k": 1}})
-        store.append(
-            {"kind": "B", "seed": 2}, {"x": math.nan, "n": 0, "ok": False, "xs": [], "d": {}, "note": ""}
-        )
+        with pytest.warns(
+            NaNResultWarning, match=r'trial \{"kind":"B","seed":2\}: column x: the trial returned'
+        ):
+            store.append(
+                {"kind": "B", "seed": 2}, {"x": math.nan, "n": 0, "ok": False, "xs": [], "d": {}, "note": ""}
+            )
         store.append({"kind": "C", "seed": 3}, error_class="SolverError", error="no")
-    loaded = load(tmp_path / "t.jsonl", schema, "t")
+    with pytest.warns(
+        NaNResultWarning, match=r't\.jsonl:4: trial \{"kind":"B","seed":2\}: column x: NaN result'
+    ):
+        loaded = load(tmp_path / "t.jsonl", schema, "t")
+    assert loaded.nan == [('{"kind":"B","seed":2}', "x")]
     a, b, c = loaded.rows.values()
     assert a["x"] == 3.0 and isinstance(a["x"], float) and a["xs"] == [1, 2] and a["ok"] is True
     assert math.isnan(b["x"]) and b["note"] == "" and b["d"] == {}
@@ -236,6 +251,93 @@ def test_rows_failing_their_schema_are_reported_and_recomputed(tmp_path: Path, e
     assert CALLS == [2] and rows[2]["square"] == 4
 
 
+def _lose_header(raw: list[bytes]) -> list[bytes]:
+    return raw[1:]
+
+
+def _cut_header(raw: list[bytes]) -> list[bytes]:
+    return [raw[0][:30] + b"\n", *raw[1:]]
+
+
+def _zero_header(raw: list[bytes]) -> list[bytes]:
+    return [b"\x00" * (len(raw[0]) - 1) + b"\n", *raw[1:]]
+
+
+def _other_json_header(raw: list[bytes]) -> list[bytes]:
+    return [b'{"record":"header","version":1}\n', *raw[1:]]
+
+
+@pytest.mark.parametrize(
+    ("damage", "problem"),
+    [
+        (_lose_header, "missing"),
+        (_cut_header, "truncated or not JSON"),
+        (_zero_header, "NUL bytes"),
+        (_other_json_header, "incomplete"),
+    ],
+)
+def test_a_damaged_header_is_recovered_keeping_every_row(tmp_path: Path, damage: Any, problem: str) -> None:
+    run_trials(COUNTED, TRIALS, tmp_path, progress=False)
+    path = COUNTED.path(tmp_path)
+    path.write_bytes(b"".join(damage(lines(path))))
+    CALLS.clear()
+    with pytest.warns(DamagedRowWarning, match=rf"squares\.jsonl:1: header: {problem}") as caught:
+        rows = run_trials(COUNTED, TRIALS, tmp_path, progress=False)
+    assert len(caught) == 1  # only the header: no row was dropped
+    assert CALLS == [] and [r["square"] for r in rows] == [0, 1, 4, 9]
+    header = json.loads(lines(path)[0])
+    assert header["format"] == "pmht-opt-trials" and header["study"] == "squares"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        loaded = load(path, SCHEMA, "squares")
+    assert loaded.clean and len(loaded.rows) == 4 and len(loaded.runs) == 2
+
+
+@pytest.mark.parametrize(
+    "content",
+    [
+        b"name,value\nalpha,1\n",
+        b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR",
+        b'{"some": "json"}\n{"other": 1}\n',
+        b'{"record":"header","format":"another-format","study":"squares"}\n',
+    ],
+)
+def test_a_foreign_file_is_refused_by_name_and_never_overwritten(tmp_path: Path, content: bytes) -> None:
+    path = COUNTED.path(tmp_path)
+    path.write_bytes(content)
+    CALLS.clear()
+    for resume in (True, False):  # not even when asked to start afresh
+        with pytest.raises(ConfigError, match=rf"{path}: not a results file of this project"):
+            run_trials(COUNTED, TRIALS, tmp_path, progress=False, resume=resume)
+        with pytest.raises(ConfigError, match="not a results file"):
+            read_rows(path, SCHEMA, "squares")
+    assert path.read_bytes() == content and CALLS == []
+
+
+@pytest.mark.parametrize("content", [b"", b"\x00" * 200])
+def test_an_empty_or_zeroed_results_file_is_started_again(tmp_path: Path, content: bytes) -> None:
+    """What a power cut leaves of a new file holds nothing to lose: it gets a header and the rows."""
+    path = COUNTED.path(tmp_path)
+    path.write_bytes(content)
+    with pytest.warns(DamagedRowWarning, match="header"):
+        rows = run_trials(COUNTED, TRIALS, tmp_path, progress=False)
+    assert [r["square"] for r in rows] == [0, 1, 4, 9]
+    assert json.loads(lines(path)[0])["record"] == "header" and b"\x00" not in path.read_bytes()
+
+
+def test_nan_where_the_schema_means_not_measured_is_not_flagged(tmp_path: Path) -> None:
+    schema = Schema(
+        {"seed": "int"}, {"t": "float", "x": "float"}, not_measured={"t": "a failed run has no time"}
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with ResultsFile(tmp_path / "n.jsonl", schema, "n", {}) as store:
+            store.append({"seed": 0}, {"t": math.nan, "x": 1.0})
+        assert load(tmp_path / "n.jsonl", schema, "n").nan == []
+    with pytest.raises(ConfigError, match="not_measured"):
+        Schema({"seed": "int"}, {"t": "float"}, not_measured={"t": ""})
+
+
 def test_a_file_of_another_study_is_refused(tmp_path: Path) -> None:
     run_trials(COUNTED, TRIALS, tmp_path, progress=False)
     with pytest.raises(ConfigError, match="holds study 'squares'"):
@@ -359,6 +461,25 @@ def test_bad_dask_addresses_fail_fast() -> None:
     assert time.perf_counter() - started < 5
 
 
+def test_a_real_dask_scheduler_answers_the_probe_and_a_worker_is_not_one() -> None:
+    if importlib.util.find_spec("distributed") is None:
+        pytest.skip("the dask extra is not installed")
+    from distributed import LocalCluster
+
+    from studies.executors import probe_scheduler
+    from studies.trials import dask_executor
+
+    with LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=False, protocol="tcp", dashboard_address=None
+    ) as cluster:
+        assert probe_scheduler(cluster.scheduler_address, 5.0)["type"] == "Scheduler"
+        with dask_executor(cluster.scheduler_address) as ex:
+            assert ex.submit(pow, 2, 5).result() == 32
+        worker = next(iter(cluster.scheduler_info["workers"]))
+        with pytest.raises(ConfigError, match=rf"--dask-scheduler {worker}: answers as 'Worker'"):
+            probe_scheduler(worker, 5.0)
+
+
 def test_bad_workers_is_a_config_error() -> None:
     bad_values: list[Any] = [0, -1, 1.5, True]
     for bad in bad_values:
@@ -371,6 +492,19 @@ def test_progress_bar_is_shown(tmp_path: Path, capsys: pytest.CaptureFixture[str
     run_trials(COUNTED, TRIALS, tmp_path, label="my study")
     err = capsys.readouterr().err
     assert "my study" in err and "4/4" in err
+
+
+def test_a_worker_that_dies_while_verifying_is_a_mismatch_not_a_traceback(tmp_path: Path) -> None:
+    schema = Schema({"seed": "int", "marker": "str"}, SCHEMA.values)
+    with ResultsFile(tmp_path / "squares.jsonl", schema, "squares", {}) as store:
+        for s in range(4):
+            store.append({"seed": s, "marker": "-"}, {"square": s * s, "root": math.sqrt(s)})
+    with WorkerPool(2) as pool:
+        _, mismatches = verify(TrialTable("squares", crash_always, schema), tmp_path, 4, executor=pool)
+    assert [(m.trial, m.column, m.stored) for m in mismatches] == [
+        ('{"marker":"-","seed":2}', "error_class", "")
+    ]
+    assert str(mismatches[0].fresh) == "WorkerCrashed"
 
 
 def test_verify_passes_on_fresh_results_and_names_a_tampered_row(tmp_path: Path) -> None:

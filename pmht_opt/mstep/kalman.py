@@ -3,7 +3,9 @@
 Without constraints the M-step is a smoothing problem: the paths that maximise ``log P(X)`` plus the
 weighted fit are the smoothed means of a linear-Gaussian model measured by ``ztilde = WZ / W`` with
 covariance ``R / W`` (paper eqs 15-16; docs/model.md section 4.4). The x and y axes share ``F3``, ``Q3`` and
-``R / W``, so one covariance recursion per platform serves both axes' means.
+``R / W``, so one covariance recursion per platform serves both axes' means. The process noise of
+the answer comes from the smoother's adjoint recursion, so the EM objective's prior term is the exact
+smoother's at every time step a scenario accepts.
 """
 
 from __future__ import annotations
@@ -38,4 +40,7 @@ class KalmanMStep(MStep):
         )
         means = res.means  # (M, T+1, 3, 2)
         states = np.concatenate([means[..., 0], means[..., 1]], axis=2)
-        return MStepOutput(states=states, status=solvers.Status.OPTIMAL, raw_status="exact")
+        # The process noise from the smoother's adjoint recursion, not from the states: the EM
+        # objective's prior term then keeps its digits at small dt (solvers.kalman).
+        noise = np.concatenate([res.noise[..., 0], res.noise[..., 1]], axis=2)  # (M, T, 6)
+        return MStepOutput(states=states, status=solvers.Status.OPTIMAL, raw_status="exact", noise=noise)

@@ -74,6 +74,21 @@ MSTEPS = Schema(
         "max_pos_diff_same": "float?",
         "reference_status": "str?",
     },
+    # A backend that failed, or does not take the problem, has no time and no answer to compare.
+    not_measured={
+        name: "no measurement where the backend failed or does not take the problem"
+        for name in (
+            "setup_s",
+            "first_solve_s",
+            "time_s",
+            "objective",
+            "objective_gap",
+            "max_pos_diff",
+            "max_violation",
+            "objective_gap_same",
+            "max_pos_diff_same",
+        )
+    },
 )
 MSTEPS_NAME = "solvers_msteps"
 
