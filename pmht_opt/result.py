@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -108,6 +107,13 @@ class PlanResult:
         locale's platform probabilities.
     anneal
         Description of the annealing schedule of ``r`` the plan was made with (``"none"``).
+    planner
+        The planner that made it (:data:`pmht_opt.PLANNERS`: ``"pmht"``, ``"smoothed"``,
+        ``"coverage"``).
+
+    Figures and exports are functions that take a result: :func:`pmht_opt.plotting.plot_result`,
+    :func:`pmht_opt.io.export_csv`, :func:`pmht_opt.io.export_geojson` and
+    :func:`pmht_opt.io.export_qgc_plan`.
     """
 
     scenario: Scenario
@@ -125,13 +131,15 @@ class PlanResult:
     reports: tuple[ConstraintReport, ...] = ()
     estep: EStepSummary | None = None
     anneal: str = "none"
+    planner: str = ""
 
     def __repr__(self) -> str:
         sc = self.scenario
         label = f"{sc.name!r}, " if sc.name else ""
         return (
-            f"PlanResult({label}{sc.n_platforms} platforms, {sc.n_locales} locales, T={sc.horizon}, "
-            f"solver={self.solver!r}, iterations={self.n_iterations}, distance={self.total_distance:.4g}, "
+            f"PlanResult({label}{self.planner or 'plan'}: {sc.n_platforms} platforms, {sc.n_locales} "
+            f"locales, T={sc.horizon}, solver={self.solver!r}, iterations={self.n_iterations}, "
+            f"distance={self.total_distance:.4g}, "
             f"coverage@{sc.coverage_radius:g}={self.coverage():.0%}, max violation={self.max_violation:.1e})"
         )
 
@@ -273,38 +281,6 @@ class PlanResult:
                 for r in self.constraint_reports()
             },
         }
-
-    def plot(self, path: str | Path, title: str | None = None, show_assignment: bool = False) -> Path:
-        """Write a figure in the style of the paper's Figures 2-4 to ``path`` (PNG, PDF, SVG...)."""
-        from pmht_opt.plotting import plot_paths
-
-        return plot_paths(
-            self.scenario,
-            self.positions,
-            path,
-            title=title if title is not None else self._default_title(),
-            assignment=self.assignment if show_assignment else None,
-            constraints=self.constraints,
-        )
-
-    def to_csv(self, path: str | Path, origin: Any = None) -> Path:
-        """Write the plan as CSV, one row per platform and step (:func:`pmht_opt.io.export_csv`)."""
-        from pmht_opt.io import export_csv
-
-        return export_csv(self, path, origin)
-
-    def to_geojson(self, path: str | Path, origin: Any = None) -> Path:
-        """Write the plan as GeoJSON, RFC 7946 (:func:`pmht_opt.io.export_geojson`)."""
-        from pmht_opt.io import export_geojson
-
-        return export_geojson(self, path, origin)
-
-    def _default_title(self) -> str:
-        name = f"{self.scenario.name}: " if self.scenario.name else ""
-        return (
-            f"{name}PMHT ({self.solver}), distance {self.total_distance:.1f}, "
-            f"coverage@{self.scenario.coverage_radius:g} {self.coverage():.0%}"
-        )
 
 
 def check_plan(result: Any) -> PlanResult:

@@ -14,6 +14,7 @@ import numpy as np
 from pmht_opt import validation
 from pmht_opt.exceptions import ScenarioError
 from pmht_opt.model import STATE_DIM, MotionModel
+from pmht_opt.toml_writer import dumps
 
 _log = logging.getLogger("pmht_opt")
 
@@ -194,8 +195,6 @@ class Scenario:
         if suffix == ".json":
             text = json.dumps(self.to_dict(), indent=1, ensure_ascii=False) + "\n"
         elif suffix == ".toml":
-            from pmht_opt.io.toml_ import dumps
-
             text = dumps(self.to_dict(), header="pmht-opt scenario")
         else:
             raise ScenarioError(f"Scenario files end in .toml or .json, got {path.name!r}.")

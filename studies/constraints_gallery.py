@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import pmht_opt as po
+from pmht_opt.plotting import plot_result
 from studies.report import write_json
 
 
@@ -65,7 +66,7 @@ def main() -> None:
             f"{sc.name}: {name.replace('_', ' ')}; distance {res.total_distance:.1f}, "
             f"cov@0.3 {res.coverage():.0%}"
         )
-        print(f"wrote: {res.plot(figdir / f'{name}.png', title=title)}")
+        print(f"wrote: {plot_result(res, figdir / f'{name}.png', title=title)}")
         print(
             f"{name:24s} distance {row['total_distance']:7.1f}  cov@0.3 {row['coverage_0.3']:.2f}  "
             f"excursion {row['max_excursion']:.2f}  violation {row['max_violation']:.1e}  "

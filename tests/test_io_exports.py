@@ -16,6 +16,8 @@ from pmht_opt.exceptions import ConfigError
 from pmht_opt.geometry import point_polyline_distance
 from pmht_opt.io import (
     example_mission,
+    export_csv,
+    export_geojson,
     export_qgc_plan,
     plan_mission,
     read_geojson_paths,
@@ -48,7 +50,7 @@ def _strict_json(path: Path) -> Any:
 
 
 def test_csv_round_trips_the_states(tmp_path: Path, plane_plan: po.PlanResult) -> None:
-    path = plane_plan.to_csv(tmp_path / "plan.csv")
+    path = export_csv(plane_plan, tmp_path / "plan.csv")
     header = path.read_text().splitlines()[0].split(",")
     assert header == ["platform", "step", "time", "x", "y", "vx", "vy", "ax", "ay"]
     M, T1, _ = plane_plan.states.shape
@@ -60,7 +62,7 @@ def test_csv_of_a_geo_plan_adds_latitude_and_longitude(
     tmp_path: Path, geo_plan: tuple[po.PlanResult, Any]
 ) -> None:
     result, origin = geo_plan
-    path = result.to_csv(tmp_path / "geo.csv", origin)
+    path = export_csv(result, tmp_path / "geo.csv", origin)
     rows = path.read_text().splitlines()
     assert rows[0].endswith(",lat,lon")
     first = rows[1 + 5].split(",")  # platform 0, step 5
@@ -89,7 +91,7 @@ def _check_geojson_object(obj: dict[str, Any], geo: bool) -> None:
 
 
 def test_geojson_round_trips_paths_locales_and_starts(tmp_path: Path, plane_plan: po.PlanResult) -> None:
-    path = plane_plan.to_geojson(tmp_path / "plan.geojson")
+    path = export_geojson(plane_plan, tmp_path / "plan.geojson")
     obj = _strict_json(path)
     _check_geojson_object(obj, geo=False)
     assert obj["pmht_opt"]["frame"] == "plane"
@@ -107,7 +109,7 @@ def test_geojson_round_trips_paths_locales_and_starts(tmp_path: Path, plane_plan
 
 def test_geojson_of_a_geo_plan_is_wgs84(tmp_path: Path, geo_plan: tuple[po.PlanResult, Any]) -> None:
     result, origin = geo_plan
-    path = result.to_geojson(tmp_path / "geo.geojson", origin)
+    path = export_geojson(result, tmp_path / "geo.geojson", origin)
     obj = _strict_json(path)
     _check_geojson_object(obj, geo=True)
     assert obj["pmht_opt"]["frame"] == "wgs84"

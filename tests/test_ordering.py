@@ -30,6 +30,7 @@ from pmht_opt.ordering import (
     tour_distance,
 )
 from pmht_opt.ordering.pyvrp_ import solve_pyvrp
+from pmht_opt.plotting import plot_tour
 from pmht_opt.scenario import Scenario, paper_scenario
 
 #: Agreement of a solver's optimum with the exhaustive one (floating point sums in different orders).
@@ -574,7 +575,7 @@ def test_tour_result_views_and_validation() -> None:
 def test_tour_result_plot_writes_png(tmp_path: Path) -> None:
     sc = paper_scenario("B", seed=0)
     res = solve_ga_tsp(sc, iterations=20)
-    out = res.plot(tmp_path / "sub" / "tour.png")
+    out = plot_tour(res, tmp_path / "sub" / "tour.png")
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

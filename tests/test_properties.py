@@ -28,7 +28,7 @@ from hypothesis import strategies as st
 import pmht_opt as po
 from pmht_opt import cli, validation
 from pmht_opt.exceptions import ConfigError, InfeasibleError, PmhtOptError, ScenarioError, SolverError
-from pmht_opt.io.toml_ import dumps
+from pmht_opt.toml_writer import dumps
 
 # ------------------------------------------------------------------ strategies
 

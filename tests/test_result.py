@@ -9,6 +9,7 @@ import pytest
 
 import pmht_opt as po
 from pmht_opt.geometry import count_crossings, point_polyline_distance
+from pmht_opt.plotting import plot_result
 from pmht_opt.result import IterationHistory
 
 
@@ -104,7 +105,7 @@ def test_parallel_paths_do_not_cross() -> None:
 def test_plot_writes_a_png(tmp_path: Path) -> None:
     sc = po.paper_scenario("B", seed=0, horizon=60)
     res = po.plan_pmht(sc, po.PMHTConfig(max_iter=5))
-    out = res.plot(tmp_path / "fig" / "paths.png")
+    out = plot_result(res, tmp_path / "fig" / "paths.png")
     data = out.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
     metrics = res.metrics()
@@ -139,4 +140,4 @@ def test_plot_draws_obstacles_and_area_bounds(tmp_path: Path) -> None:
         assert len(dashed) == 1 and dashed[0].get_width() == 10
     finally:
         plt.close(fig)
-    assert res.plot(tmp_path / "obstacles.png").stat().st_size > 10_000
+    assert plot_result(res, tmp_path / "obstacles.png").stat().st_size > 10_000

@@ -23,8 +23,9 @@ import solvers
 from pmht_opt import cli, validation
 from pmht_opt.constraints import Terminal
 from pmht_opt.exceptions import ConfigError, ScenarioError, SolverError
-from pmht_opt.io import load_mission, save_mission
+from pmht_opt.io import export_csv, export_geojson, load_mission, save_mission
 from pmht_opt.io.mission import Mission
+from pmht_opt.plotting import plot_result
 
 LOCALES = [[1.0, 1.0], [2.0, 2.5], [3.0, 1.0]]
 FAST = po.PMHTConfig(max_iter=2, anneal=None)
@@ -92,8 +93,8 @@ def test_an_unwritable_scenario_path_is_a_scenario_error(tmp_path: Path) -> None
 
 def test_every_writer_creates_missing_folders(tmp_path: Path) -> None:
     res = po.plan_pmht(scenario(), FAST)
-    assert res.to_csv(tmp_path / "a" / "p.csv").exists()
-    assert res.to_geojson(tmp_path / "b" / "p.geojson").exists()
+    assert export_csv(res, tmp_path / "a" / "p.csv").exists()
+    assert export_geojson(res, tmp_path / "b" / "p.geojson").exists()
     assert save_mission(Mission(scenario()), tmp_path / "c" / "m.toml").exists()
     assert scenario().save(tmp_path / "d" / "s.json").exists()
 
@@ -653,14 +654,16 @@ def test_malformed_plan_files_are_scenario_errors(
 def test_exports_check_their_path_origin_and_format(tmp_path: Path) -> None:
     res = po.plan_pmht(scenario(), FAST)
     with pytest.raises(ScenarioError, match=r"path: cannot write .*: Is a directory"):
-        res.to_csv(tmp_path)
+        export_csv(res, tmp_path)
     with pytest.raises(ConfigError, match="path: expected a file path, got None"):
-        res.to_geojson(None)  # type: ignore[arg-type]
+        export_geojson(res, None)  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match="origin: expected a GeoOrigin or None, got tuple"):
-        res.to_csv(tmp_path / "a.csv", origin=(35.0, 149.0))  # type: ignore[arg-type]
+        export_csv(res, tmp_path / "a.csv", origin=(35.0, 149.0))  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match=r"matplotlib cannot write '\.xyz' figures"):
-        res.plot(tmp_path / "f.xyz")
-    assert res.plot(tmp_path / "f") == tmp_path / "f.png" and (tmp_path / "f.png").stat().st_size > 0
+        plot_result(res, tmp_path / "f.xyz")
+    assert plot_result(res, tmp_path / "f") == tmp_path / "f.png" and (tmp_path / "f.png").stat().st_size > 0
+    with pytest.raises(ConfigError, match="is a directory"):
+        plot_result(res, tmp_path)
     with pytest.raises(ScenarioError, match=r"origin\.lat"):
         po.geometry.GeoOrigin(lat=2**2000, lon=0.0)
 

@@ -162,7 +162,9 @@ def order(args: argparse.Namespace) -> int:
     for m, route in enumerate(tour.routes):
         print(f"platform {m}      {len(route)} locales: {' '.join(str(int(n)) for n in route)}")
     if figure is not None:
-        print(f"figure: {tour.plot(figure, sc)}")
+        from pmht_opt.plotting import plot_tour
+
+        print(f"figure: {plot_tour(tour, figure, sc)}")
     if js is not None:
         write_text(js, json.dumps(tour.to_dict()) + "\n")
         print(f"tour: {js}")

@@ -3,18 +3,31 @@
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar, Protocol
 
 import numpy as np
 
 import solvers
 from pmht_opt.constraints.base import Constraint, ConstraintContext
+from pmht_opt.exceptions import ConfigError
 from pmht_opt.parallel import thread_count
 from pmht_opt.scenario import Scenario
+from solvers.banded import BandedSmootherResult
 
-if TYPE_CHECKING:
-    from pmht_opt.mstep.banded import BandedMStep
+
+class ExactReference(Protocol):
+    """The exact unconstrained smoother an M-step's answers are checked against: for given weights,
+    its answer for every platform and both axes."""
+
+    def smooth(self, data: MStepData) -> BandedSmootherResult:
+        """The exact smoother's answer for ``data``'s weights."""
+        ...
+
+
+#: ``check(mstep, data, output)``: raises if ``output`` is not a plausible answer of ``data``.
+AnswerCheck = Callable[["MStep", "MStepData", "MStepOutput"], None]
 
 
 @dataclass
@@ -92,6 +105,12 @@ class MStep(abc.ABC):
         Every constraint of the run; :attr:`MStepData.active` says which are imposed in a solve.
     threads
         Threads a solve may use (the exact smoother splits its batch of platforms over them).
+    reference
+        The exact unconstrained smoother of this scenario, which answers are checked against
+        (:class:`ExactReference`; the registry gives every backend but the exact one its own).
+    check
+        The check every answer passes before :meth:`solve` returns it (the registry gives
+        :func:`pmht_opt.mstep.check.check_answer`); ``None`` checks nothing.
     """
 
     #: Registry name.
@@ -104,6 +123,9 @@ class MStep(abc.ABC):
         accept_inaccurate: bool = False,
         constraints: tuple[Constraint, ...] = (),
         threads: int = 1,
+        *,
+        reference: ExactReference | None = None,
+        check: AnswerCheck | None = None,
     ) -> None:
         self.scenario = scenario
         self.constraints = tuple(constraints)
@@ -114,7 +136,8 @@ class MStep(abc.ABC):
         self.M = scenario.n_platforms
         self.x0 = scenario.initial_states
         self.threads = thread_count(threads)
-        self._reference: BandedMStep | None = None
+        self._reference = reference
+        self._check = check
         self._setup()
 
     def _setup(self) -> None:
@@ -124,27 +147,23 @@ class MStep(abc.ABC):
     def solve(self, data: MStepData) -> MStepOutput:
         """Minimise ``J`` for these weights, subject to the constraints active in ``data``.
 
-        The answer is checked before it is returned (:func:`~pmht_opt.mstep.check.check_answer`): a
-        backend that reports success on a wrong answer raises
-        :class:`~pmht_opt.exceptions.WrongAnswerError`.
+        The answer is checked before it is returned (the ``check`` given at construction,
+        :func:`~pmht_opt.mstep.check.check_answer` from the registry): a backend that reports
+        success on a wrong answer raises :class:`~pmht_opt.exceptions.WrongAnswerError`.
         """
-        from pmht_opt.mstep.check import check_answer
-
         out = self._solve(data)
-        check_answer(self, data, out)
+        if self._check is not None:
+            self._check(self, data, out)
         return out
 
     @abc.abstractmethod
     def _solve(self, data: MStepData) -> MStepOutput:
         """The backend's own solve."""
 
-    def reference(self) -> BandedMStep:
+    def reference(self) -> ExactReference:
         """The exact unconstrained smoother of this scenario, which answers are checked against."""
-        if getattr(self, "_reference", None) is None:
-            from pmht_opt.mstep.banded import BandedMStep
-
-            self._reference = BandedMStep(self.scenario, threads=self.threads)
-        assert self._reference is not None
+        if self._reference is None:
+            raise ConfigError(f"the {self.name} M-step was built without an exact reference.")
         return self._reference
 
     def close(self) -> None:  # noqa: B027 - most backends hold nothing to release
@@ -159,7 +178,7 @@ def check_cvxpy_solver(settings: dict[str, object], field: str) -> None:
     """Raise :class:`~pmht_opt.exceptions.UnknownSolverError` naming ``field`` if the settings'
     ``cvxpy_solver`` (default ``"CLARABEL"``) is not a solver cvxpy has installed."""
     from pmht_opt.exceptions import UnknownSolverError
-    from solvers.cvxpy_ import check_solver_name
+    from solvers.cvxpy_ import check_solver_name  # cvxpy's solver names, where cvxpy is asked for
 
     try:
         check_solver_name(str(settings.get("cvxpy_solver", "CLARABEL")))

@@ -12,7 +12,14 @@ import solvers
 from pmht_opt.constraints.base import Constraint
 from pmht_opt.constraints.blocks import Block
 from pmht_opt.exceptions import ConfigError, InfeasibleError, PmhtOptError, SolverError, UnknownSolverError
-from pmht_opt.mstep.base import MStep, MStepData, MStepOutput, check_cvxpy_solver
+from pmht_opt.mstep.base import (
+    AnswerCheck,
+    ExactReference,
+    MStep,
+    MStepData,
+    MStepOutput,
+    check_cvxpy_solver,
+)
 from pmht_opt.mstep.diagnosis import diagnose
 from pmht_opt.mstep.platform import PlatformQP
 from pmht_opt.mstep.rows import PlatformRows, RowBuilder
@@ -100,8 +107,11 @@ class QPMStep(MStep):
         threads: int = 1,
         constraints: tuple[Constraint, ...] = (),
         exact_unconstrained: bool = False,
+        *,
+        reference: ExactReference | None = None,
+        check: AnswerCheck | None = None,
     ) -> None:
-        super().__init__(scenario, settings, accept_inaccurate, constraints)
+        super().__init__(scenario, settings, accept_inaccurate, constraints, reference=reference, check=check)
         self.solver = solver
         #: Work budget of one M-step with constraint rows (``None``: none), :data:`MSTEP_WORK`.
         self.mstep_work = _work_limit(self.settings.pop("mstep_work_limit", MSTEP_WORK.get(solver)))

@@ -10,7 +10,12 @@ from typing import Any
 import solvers
 from pmht_opt.constraints.base import Constraint
 from pmht_opt.exceptions import ConfigError, UnknownSolverError
+from pmht_opt.mstep.banded import BandedMStep
 from pmht_opt.mstep.base import MStep
+from pmht_opt.mstep.check import check_answer
+from pmht_opt.mstep.cvxpy_ import JointCvxpyMStep
+from pmht_opt.mstep.kalman import KalmanMStep
+from pmht_opt.mstep.qp import QPMStep
 from pmht_opt.scenario import Scenario
 
 
@@ -125,20 +130,21 @@ def make_mstep(
     check_constraints(key, constraints)
     if key in ("banded", "kalman") and settings:
         raise ConfigError(f"solver_settings: the {key} backend takes none, got {sorted(settings)}.")
-    if key == "banded":
-        from pmht_opt.mstep.banded import BandedMStep
-
-        return BandedMStep(scenario, accept_inaccurate=accept_inaccurate, threads=threads)
+    if key == "banded":  # exact by construction: its answers are checked for being finite
+        return BandedMStep(scenario, accept_inaccurate=accept_inaccurate, threads=threads, check=check_answer)
+    reference = BandedMStep(scenario, threads=threads)
     if key == "kalman":
-        from pmht_opt.mstep.kalman import KalmanMStep
-
-        return KalmanMStep(scenario, accept_inaccurate=accept_inaccurate, threads=threads)
+        return KalmanMStep(
+            scenario,
+            accept_inaccurate=accept_inaccurate,
+            threads=threads,
+            reference=reference,
+            check=check_answer,
+        )
     if any("cvxpy" in con.needs for con in constraints):
-        from pmht_opt.mstep.cvxpy_ import JointCvxpyMStep
-
-        return JointCvxpyMStep(scenario, settings, accept_inaccurate, tuple(constraints))
-    from pmht_opt.mstep.qp import QPMStep
-
+        return JointCvxpyMStep(
+            scenario, settings, accept_inaccurate, tuple(constraints), reference=reference, check=check_answer
+        )
     return QPMStep(
         scenario,
         settings,
@@ -147,4 +153,6 @@ def make_mstep(
         threads=threads,
         constraints=tuple(constraints),
         exact_unconstrained=asked == "auto",
+        reference=reference,
+        check=check_answer,
     )

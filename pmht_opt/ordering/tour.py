@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -222,7 +221,7 @@ class TourResult:
     @property
     def route_distances(self) -> np.ndarray:
         """``(M,)`` distance flown by each platform (needs :attr:`scenario`)."""
-        return route_costs(self._scenario(None), self.routes, self.closed)
+        return route_costs(self.scenario_for(None), self.routes, self.closed)
 
     @property
     def assignment(self) -> np.ndarray:
@@ -240,7 +239,7 @@ class TourResult:
             out[r] = np.arange(r.size)
         return out
 
-    def _scenario(self, scenario: Scenario | None) -> Scenario:
+    def scenario_for(self, scenario: Scenario | None) -> Scenario:
         sc = scenario if scenario is not None else self.scenario
         if sc is None:
             raise ConfigError("scenario: this TourResult holds no scenario; pass one.")
@@ -260,7 +259,7 @@ class TourResult:
         SolverError
             A stored distance that disagrees with the recomputation.
         """
-        sc = self._scenario(scenario)
+        sc = self.scenario_for(scenario)
         min_tour = integer("min_tour", min_tour, ConfigError, 0)
         recomputed = tour_distance(sc, self.routes, self.closed)
         short = [m for m, r in enumerate(self.routes) if len(r) < min_tour]
@@ -283,15 +282,6 @@ class TourResult:
             "history_last": float(self.history[-1]) if self.history.size else None,
             "n_iterations": self.n_iterations,
         }
-
-    def plot(self, path: str | Path, scenario: Scenario | None = None, title: str | None = None) -> Path:
-        """Write a PNG of the starts (boxes), locales (crosses) and routes (one colour per platform)."""
-        from pmht_opt.plotting import plot_paths
-
-        sc = self._scenario(scenario)
-        legs = route_legs(sc, self.routes, self.closed)
-        label = title if title is not None else f"{self.method}: total distance {self.total_distance:.2f}"
-        return plot_paths(sc, legs, path, title=label, assignment=self.assignment)
 
 
 #: Upper bound of iteration counts and limits of the orderers: beyond it a run would not end in any

@@ -109,8 +109,9 @@ def run_em(
     platform_prior: Any = None,
     initial_paths: Any = None,
     callbacks: EMCallbacks | None = None,
+    planner: str = "pmht",
 ) -> PlanResult:
-    """Run the EM of ``config`` on ``scenario`` to its end and return its plan.
+    """Run the EM of ``config`` on ``scenario`` to its end and return its plan (made by ``planner``).
 
     A plan fitted at another ``r`` than the scenario's (a criterion other than the iteration limit
     stopped the run during annealing) is returned with a :class:`~pmht_opt.exceptions.PlanWarning`; its
@@ -125,6 +126,7 @@ def run_em(
         callbacks=callbacks,
     ) as run:
         result = run.run()
+    result.planner = planner
     fitted = result.history.fitted_r
     if not np.isclose(fitted, scenario.r, rtol=1e-12, atol=0.0):
         warnings.warn(

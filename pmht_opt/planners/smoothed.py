@@ -185,6 +185,7 @@ def smooth_tour(
         ctx = run.last_context
     assert ctx is not None
     result.assignment = platform
+    result.planner = "smoothed"
     result.visit_time = visits.visits(ctx)[1]
     result.extras.update({"routes": routes, "sub_batches": windows, "visit_radius": visits.radius})
     return result

@@ -55,6 +55,7 @@ __all__ = [
     "platform_colour",
     "plot_paths",
     "plot_result",
+    "plot_tour",
     "pyplot",
 ]
 
@@ -85,8 +86,10 @@ def plot_paths(
 
 def figure_path(path: Any) -> Path:
     """The file a figure goes to: ``path``, with ``.png`` added when it has no suffix (what matplotlib
-    writes then); ConfigError naming ``path`` for a format matplotlib cannot write."""
+    writes then); ConfigError naming ``path`` for a directory or a format matplotlib cannot write."""
     out = file_path("path", path)
+    if out.is_dir():
+        raise ConfigError(f"path: {str(out)!r} is a directory; give a file name for the figure.")
     if not out.suffix:
         out = out.with_name(out.name + ".png")
     formats = figure_formats()
@@ -113,8 +116,9 @@ def plot_result(
     u = unit.strip(" ()")
     if title is None:
         name = f"{sc.name}: " if sc.name else ""
+        who = f"{result.planner} ({result.solver})" if result.planner else result.solver
         title = (
-            f"{name}{result.solver}, distance {result.total_distance:.1f}{' ' + u if u else ''}, "
+            f"{name}{who}, distance {result.total_distance:.1f}{' ' + u if u else ''}, "
             f"coverage within {sc.coverage_radius:g}{' ' + u if u else ''}: {result.coverage():.0%}"
         )
     labels = ("east (m)", "north (m)") if u == "m" else ("x", "y")
@@ -129,3 +133,17 @@ def plot_result(
         labels=labels,
         unit=f" {u}" if u else "",
     )
+
+
+def plot_tour(
+    tour: Any, path: str | Path, scenario: Scenario | None = None, title: str | None = None
+) -> Path:
+    """Write the figure of a :class:`~pmht_opt.ordering.TourResult` to ``path``: the starts (boxes),
+    locales (crosses, coloured by route) and the routes' legs (closed routes back to their start).
+    ``scenario`` is needed when the tour does not hold the one it was ordered for."""
+    from pmht_opt.ordering.tour import route_legs
+
+    sc = tour.scenario_for(scenario)
+    legs = route_legs(sc, tour.routes, tour.closed)
+    label = title if title is not None else f"{tour.method}: total distance {tour.total_distance:.2f}"
+    return plot_paths(sc, legs, path, title=label, assignment=tour.assignment)

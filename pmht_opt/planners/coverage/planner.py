@@ -313,6 +313,7 @@ def plan_coverage(
         }
     )
     result.wall_time = time.perf_counter() - t0
+    result.planner = "coverage"
     return result
 
 

@@ -1,4 +1,5 @@
-"""A small TOML writer for mission files (the standard library reads TOML but does not write it)."""
+"""A small TOML writer for scenario and mission files (the standard library reads TOML but does not
+write it)."""
 
 from __future__ import annotations
 
