@@ -3,7 +3,21 @@
 The one way in is :func:`plan` (``plan(scenario, method="coverage" | "smoothed" | "pmht", ...)``) and,
 for visiting orders alone, :func:`order_locales`. Public names are re-exported here; see README.md for
 an overview.
+
+The generic QP layer is the top-level package ``solvers`` (and the studies ``studies``), installed by
+this distribution beside ``pmht_opt``. Those names are generic: another project's package of the same
+name installed in the same environment would shadow them, so the marker each carries is checked here
+and a clash is named rather than left to fail somewhere deep (docs/decisions.md, "Package names").
 """
+
+import solvers as _solvers
+
+if getattr(_solvers, "__distribution__", None) != "pmht-opt":
+    raise ImportError(
+        f"the package 'solvers' found at {getattr(_solvers, '__file__', '?')} is not pmht-opt's generic QP "
+        "layer: another installed project uses the same top-level name. Install pmht-opt into a virtual "
+        "environment of its own."
+    )
 
 from pmht_opt.anneal import Anneal
 from pmht_opt.constraints import (

@@ -21,6 +21,10 @@ import importlib.util
 from dataclasses import dataclass
 from typing import Any
 
+#: The distribution this package is installed by. The top-level name ``solvers`` is generic, so
+#: ``pmht_opt`` checks this marker on import and says so if another project's ``solvers`` shadows it.
+__distribution__ = "pmht-opt"
+
 from solvers.exceptions import (
     ProblemError,
     QPError,

@@ -5,3 +5,6 @@ Each study is a module here with a trial function, a typed options dataclass and
 through :mod:`studies.trials` into append-only JSON Lines files (:mod:`studies.store`) that carry their
 provenance (:mod:`studies.provenance`). Needs the ``studies`` extra (pandas, tqdm).
 """
+
+#: The distribution this package is installed by (see ``solvers.__distribution__``).
+__distribution__ = "pmht-opt"

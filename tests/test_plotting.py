@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 import pmht_opt as po
-from pmht_opt.animation import animate_iterations, animate_plan, pick_frames
 from pmht_opt.geometry import miss_distances
 from pmht_opt.plotting import (
     draw_paths,
@@ -21,6 +20,7 @@ from pmht_opt.plotting import (
     plot_result,
     plot_tour,
 )
+from pmht_opt.plotting.animation import animate_iterations, animate_plan, pick_frames
 
 
 @pytest.fixture

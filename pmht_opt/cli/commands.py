@@ -234,4 +234,12 @@ def study(argv: Sequence[str]) -> int:
             f"the studies need {err.name}, which is not installed; "
             'install the extra: pip install ".[studies]"'
         ) from None
+    import studies
+
+    if getattr(studies, "__distribution__", None) != "pmht-opt":
+        raise MissingDependencyError(
+            f"the package 'studies' found at {getattr(studies, '__file__', '?')} is not pmht-opt's: "
+            "another installed project uses the same top-level name; install pmht-opt into a virtual "
+            "environment of its own."
+        )
     return study_main(list(argv))

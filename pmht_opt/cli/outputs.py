@@ -113,7 +113,7 @@ class Outputs:
             path = plot_result(result, self.figure, show_radius=args.show_radius, unit=unit)
             print(f"figure: {path}")
         if self.animation is not None:
-            from pmht_opt.animation import animate_plan
+            from pmht_opt.plotting.animation import animate_plan
 
             print(f"animation: {animate_plan(result, self.animation, unit=unit)}")
         if self.json is not None:
