@@ -76,25 +76,6 @@ class EMCallbacks:
                 raise ConfigError(f"EMCallbacks.{name}: expected a callable or None, got {fn!r}.")
 
 
-def with_progress(
-    callbacks: EMCallbacks | None, callback: Callable[[int, float], Any] | None
-) -> EMCallbacks | None:
-    """``callbacks`` with ``callback(iteration, objective)`` also called after every iteration."""
-    if callback is None:
-        return callbacks
-    base = callbacks if callbacks is not None else EMCallbacks()
-    inner = base.after_iteration
-    if not callable(callback):
-        raise ConfigError(f"callback: expected a callable(iteration, objective), got {callback!r}.")
-
-    def after(run: EMRun, record: IterationRecord) -> None:
-        if inner is not None:
-            inner(run, record)
-        callback(record.iteration, record.objective)
-
-    return EMCallbacks(base.after_estep, base.after_mstep, after)
-
-
 class EMRun:
     """One run of the PMHT planner's EM, from the standing (or given) paths to a plan.
 

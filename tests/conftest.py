@@ -1,6 +1,7 @@
 """Shared fixtures and tolerances.
 
-Tolerances are per backend and stated once here (STYLE lesson 7).
+Tolerances are per backend and stated once here, as each backend promises them: every backend runs
+the shared test problems, and each is held to its own stated accuracy.
 """
 
 from __future__ import annotations

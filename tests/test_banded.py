@@ -535,7 +535,7 @@ def test_threads_change_no_digit_for_a_wide_band(monkeypatch: pytest.MonkeyPatch
     parts instead of two do at this size): the parts are fixed by the batch's size, and the thread
     count still changes nothing. (Parts of fewer steps than the default keep the band small: 8k rows
     instead of the 130k it takes to split a batch at the default size.)"""
-    from solvers import banded
+    from solvers.banded import smoother as banded
 
     monkeypatch.setattr(banded, "MIN_STEPS_PER_THREAD", 60)
     rng = np.random.default_rng(15)

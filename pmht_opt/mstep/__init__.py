@@ -3,6 +3,9 @@
 Given the E-step's weights the M-step finds the paths that maximise ``log P(X)`` plus the weighted fit
 to the locales (docs/model.md section 4.4), subject to the constraints active in the iteration. Backends:
 
+* ``banded``: the exact smoother of the unconstrained problem, a banded LU of its optimality
+  conditions (:mod:`~pmht_opt.mstep.banded`): what ``solver="auto"`` runs without constraints, and the
+  reference every other backend's answers are checked against (:mod:`~pmht_opt.mstep.check`);
 * ``clarabel``, ``osqp``: the sparse QP of :mod:`pmht_opt.mstep.formulation` through :mod:`solvers`,
   one QP per platform, built once and updated in place (:mod:`~pmht_opt.mstep.qp`);
 * ``cvxpy``: the same problem written in cvxpy, any installed cvxpy solver, native cvxpy constraints

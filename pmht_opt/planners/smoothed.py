@@ -20,11 +20,11 @@ import numpy as np
 from pmht_opt import validation
 from pmht_opt.constraints.blocks import DEFAULT_SIDES
 from pmht_opt.constraints.params import positive_number
-from pmht_opt.em import EMCallbacks, EMRun, with_progress
+from pmht_opt.em import EMCallbacks, EMRun
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.ordering import TourResult, check_routes, order_locales
 from pmht_opt.planners.base import Planner, refuse_ignored
-from pmht_opt.planners.pmht import observing
+from pmht_opt.planners.pmht import observing, with_progress
 from pmht_opt.planners.windows import SPLITS, TourVisits, polyline_start, sub_batches
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario

@@ -1,174 +1,26 @@
-"""Exact smoothing of a batch of linear-Gaussian systems by a banded LU of their optimality conditions.
-
-Each system ``b`` of the batch, with ``K`` measurement columns sharing one weight sequence, is::
-
-    x_0 known,   x_t = F x_{t-1} + v_t,  v_t ~ N(0, Q)  (t = 1..T),
-    y_t = h' x_t + e_t,  e_t ~ N(0, r / w_t)  (no measurement where w_t == 0).
-
-The smoothed means are the minimisers of the weighted least-squares objective
-
-    J(x) = 1/2 sum_t (x_t - F x_{t-1})' Q^-1 (x_t - F x_{t-1}) + sum_t w_t / (2 r) (h' x_t - y_t)^2.
-
-Why not the normal equations
-----------------------------
-Eliminating the dynamics gives the banded "information form" ``(D' Q^-1 D + P) x = P y`` with ``D``
-the block-bidiagonal difference operator (``(D x)_t = x_t - F x_{t-1}``) and ``P`` the penalty. Its
-entries are formed with cancellation: ``D' Q^-1 D`` annihilates every noise-free path, i.e. its rows
-sum to zero against those paths, and it is exactly this structure that fixes the path on a stretch
-without measurements (``w_t = 0``, "coasting"), where the answer is an extrapolation. For the
-constant-acceleration model with ``q = 1e-8`` the entries of ``Q^-1`` are near 1e10 while the
-penalty is near 1e2, and the curvature along nearly noise-free paths over a coasting stretch of
-length ``l`` falls like ``l^-5``: the condition number passes 1/eps, a rounding of the entries in
-their last bit breaks the cancellation, and a banded Cholesky returns positions that can be wrong
-in the first digit. Iterative refinement cannot repair a factorisation that poor.
-
-The formulation used here
--------------------------
-Keep the dynamics as constraints ``x_t - F x_{t-1} - Q lam_t = 0`` with multipliers ``lam_t``
-(the process noise is ``v_t = Q lam_t``, its whitened value ``u_t = L' lam_t`` with ``L L' = Q``).
-The optimality conditions are, for ``t = 1..T`` (``lam_{T+1} = 0``)::
-
-    x_t - F x_{t-1} - Q lam_t                  = 0          (F x_0 on the right at t = 1)
-    (w_t / r) h h' x_t + lam_t - F' lam_{t+1}   = (w_t / r) h y_t
-
-a symmetric indefinite system in ``(lam_t, x_t)`` whose entries are the model's data themselves:
-``F``, ``Q`` and the penalty, with no inverse and no product of them. A small componentwise
-perturbation of this matrix is therefore a small relative perturbation of the model (of each
-occurrence of ``F``, ``Q``, ``w_t``, ``y_t``), to which the smoothed path is insensitive even where
-the information-form matrix is nearly singular: it is the problem's own conditioning that then
-bounds the error, not that of a derived matrix.
-
-The unknowns are scaled by ``d = sqrt(diag Q)`` (``x = d * xs``, ``lam = lam_s / d``), which makes
-the blocks dimensionless: ``diag(1/d) F diag(d)`` and ``diag(1/d) Q diag(1/d)`` (a correlation
-matrix) do not depend on ``q`` or on the time step for the constant-acceleration model, and the
-penalty becomes ``sigma_t = w_t (h' diag(d))^2 / r``, a signal-to-noise ratio per step. Ordered as
-``[lam_1, x_1, lam_2, x_2, ...]`` the matrix is banded with half-bandwidth ``n`` when ``F`` is
-upper triangular and ``h`` picks one component (``2n - 1`` in general; no other order of a step's
-unknowns gives a narrower band). The systems of the batch are stacked into one block-diagonal
-band and the ``K`` columns share the factorisation: one LAPACK ``gbsv`` (LU with partial
-pivoting) per group of systems, the groups fixed by the batch's size and run on concurrent threads
-(:mod:`solvers.band_lu`); for a band this narrow their LU is the whole band's to the last bit.
-
-Partial pivoting alone gives a small *normwise* backward error only: depending on the rows it picks,
-parts of the elimination follow the information form above, and on long coasting stretches with a
-small ``r`` the positions can be off by more than 1e-9 of their size. One step of iterative
-refinement in working precision, with the residual evaluated from the block form above (the
-innovation ``y_t - h' x_t`` is formed before it is multiplied by the weight, so a large weight does
-not cancel), brings the *componentwise* backward error to the rounding level (Skeel, "Iterative
-refinement implies numerical stability for Gaussian elimination", Math. Comp. 35, 1980), and with
-it the property of the previous paragraph. ``tests/test_banded.py`` compares the result with exact
-rational arithmetic, a dense least-squares solve in the noise variables and the RTS smoother in
-extended precision.
-
-The objective is evaluated without cancellation: the prior term from the multipliers
-(``1/2 sum ||L' lam_t||^2``) rather than from differences of nearly equal states, which lose all
-their digits when ``q dt^5`` is small against the positions, and the fit term from the innovations.
-"""
+"""The exact smoother of a batch of systems (:mod:`solvers.banded`, whose notes say why it is built so):
+the band of the optimality conditions, its LU by parts, the solve with one step of refinement, and the
+factorisation kept for other right-hand sides (:class:`BandedFactor`)."""
 
 from __future__ import annotations
 
 import functools
 import threading
-from collections import OrderedDict
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from solvers.band_lu import BandLU
+from solvers.banded.result import BandedSmootherResult
 from solvers.exceptions import ProblemError
 from solvers.problem import dense
 
-__all__ = ["BandedFactor", "BandedSmoother", "BandedSmootherResult", "banded_smoother"]
+__all__ = ["BandedFactor", "BandedSmoother"]
 
 #: Steps of the batch (systems times horizon) per LAPACK call below which the batch is not split.
 MIN_STEPS_PER_THREAD = 1000
 #: Most LAPACK calls a solve is split into.
 MAX_PARTS = 64
-
-
-class BandedSmootherResult:
-    """Smoothed means and the parts of the objective, per system and column.
-
-    Formed from the solution of the KKT system on first use (a caller that reads the states only
-    pays for no objective), each the same numbers whenever it is formed.
-
-    Attributes
-    ----------
-    means
-        ``(B, T+1, n, K)`` smoothed states, ``means[:, 0]`` is the known ``x0``.
-    noise
-        ``(B, T, n, K)`` whitened process noise ``u_t = L^-1 (x_t - F x_{t-1})`` (``L`` the lower
-        Cholesky factor of ``Q``), computed as ``L' lam_t`` from the multipliers, so it keeps its
-        relative precision when ``x_t - F x_{t-1}`` is many orders of magnitude below ``x_t``.
-    prior
-        ``(B, K)``: ``1/2 sum_t ||u_t||^2``.
-    fit
-        ``(B, K)``: ``sum_t w_t / (2 r) (h' x_t - y_t)^2``.
-    backward_error
-        Componentwise backward error of the final solution of the scaled KKT system,
-        ``max_i |b - A z|_i / (|A| |z| + |b|)_i``, when asked for (``check=True``); else ``None``.
-    """
-
-    def __init__(
-        self,
-        z: np.ndarray,
-        x0: np.ndarray,
-        y: np.ndarray,
-        rho: np.ndarray,
-        L: np.ndarray,
-        h: np.ndarray,
-        backward_error: float | None = None,
-    ) -> None:
-        # z: (K, B, T, 2n) rows [lam_t, x_t] in the model's units; y: (K, B, T); x0: (B, n, K).
-        self._z, self._x0, self._y, self._rho, self._L, self._h = z, x0, y, rho, L, h
-        self.backward_error = backward_error
-
-    @functools.cached_property
-    def _noise_k(self) -> np.ndarray:
-        """``(K, B, T, n)`` rows ``(L' lam_t)'``."""
-        n = self._x0.shape[1]
-        return np.asarray(self._z[..., :n] @ self._L)
-
-    @functools.cached_property
-    def means(self) -> np.ndarray:
-        B, n, K = self._x0.shape
-        means = np.empty((B, self._z.shape[2] + 1, n, K))
-        means[:, 0] = self._x0
-        means[:, 1:] = np.moveaxis(self._z[..., n:], 0, -1)
-        return means
-
-    @functools.cached_property
-    def noise(self) -> np.ndarray:
-        # A copy: a caller that changes it must not change the objective's parts formed later.
-        return np.moveaxis(self._noise_k, 0, -1).copy()
-
-    @functools.cached_property
-    def prior(self) -> np.ndarray:
-        noise = self._noise_k
-        return np.asarray(0.5 * np.einsum("kbti,kbti->bk", noise, noise))
-
-    @functools.cached_property
-    def fit(self) -> np.ndarray:
-        n = self._x0.shape[1]
-        innov = self._y - self._z[..., n:] @ self._h
-        return np.asarray(0.5 * np.einsum("bt,kbt->bk", self._rho, innov * innov))
-
-    @property
-    def objective(self) -> np.ndarray:
-        """``(B, K)``: ``J = prior + fit`` at the smoothed means."""
-        return np.asarray(self.prior + self.fit)
-
-    def side_by_side(self) -> tuple[np.ndarray, np.ndarray]:
-        """The columns' states and noise side by side: ``(B, T+1, K n)`` states (column ``k``'s in
-        ``[k n, (k + 1) n)``, the start first) and ``(B, T, K n)`` whitened noise; the values of
-        :attr:`means` and :attr:`noise`, laid out in one copy each."""
-        B, n, K = self._x0.shape
-        T = self._z.shape[2]
-        states = np.empty((B, T + 1, K, n))
-        states[:, 0] = np.moveaxis(self._x0, 2, 1)
-        states[:, 1:] = self._z[..., n:].transpose(1, 2, 0, 3)
-        noise = self._noise_k.transpose(1, 2, 0, 3).copy()  # a copy even where the transpose is one
-        return states.reshape(B, T + 1, K * n), noise.reshape(B, T, K * n)
 
 
 class BandedSmoother:
@@ -572,87 +424,3 @@ def _groups(B: int, T: int, n: int, min_steps: int, max_parts: int) -> tuple[tup
     bounds = [len(g) for g in np.array_split(np.arange(B), groups)]
     ends = np.cumsum(bounds) * rows
     return tuple((int(lo), int(hi)) for lo, hi in zip(np.r_[0, ends[:-1]], ends, strict=True))
-
-
-_CACHE: OrderedDict[tuple[object, ...], BandedSmoother] = OrderedDict()
-_CACHE_SIZE = 4
-_CACHE_LOCK = threading.Lock()
-
-
-def banded_smoother(
-    F: ArrayLike,
-    Q: ArrayLike,
-    h: ArrayLike,
-    r: float,
-    x0: ArrayLike,
-    y: ArrayLike,
-    weight: ArrayLike,
-    *,
-    refine: int = 1,
-    check: bool = False,
-    threads: int = 1,
-) -> BandedSmootherResult:
-    """Smooth a batch of systems sharing ``(F, Q, h, r)``: exact, one banded LU for the batch.
-
-    The same smoother as :func:`solvers.kalman.rts_smoother` with a known start (``P0 = 0``) and a
-    scalar measurement (``H = h[None]``, ``R = [[r]]``, ``y`` without its measurement axis), but
-    computed from the KKT system of the least-squares problem (module docstring). The last few
-    ``(F, Q, h, T, B)`` assemblies are cached, so calling it every EM iteration costs no rebuild.
-
-    Parameters
-    ----------
-    F, Q, h
-        ``(n, n)`` transition, ``(n, n)`` positive definite process noise covariance, ``(n,)``
-        measurement vector.
-    r
-        Unit-weight measurement variance (``> 0``).
-    x0
-        ``(B, n, K)`` known initial states.
-    y
-        ``(B, T, K)`` measurements for ``t = 1..T``.
-    weight
-        ``(B, T)`` non-negative weights: the measurement variance at step ``t`` is ``r / w_t``.
-    refine, check, threads
-        See :meth:`BandedSmoother.solve`.
-
-    Returns
-    -------
-    BandedSmootherResult
-        ``means`` is ``(B, T+1, n, K)`` like ``rts_smoother(...).means``.
-
-    Examples
-    --------
-    The constant-acceleration model of one axis, four systems, x and y as two columns::
-
-        F = [[1, dt, dt**2 / 2], [0, 1, dt], [0, 0, 1]]
-        res = banded_smoother(F, Q, [1, 0, 0], r, x0, y, W)  # x0 (4, 3, 2), y (4, T, 2), W (4, T)
-        positions = res.means[:, :, 0, :]                   # (4, T+1, 2)
-    """
-    Fa = np.asarray(F, dtype=float)
-    Qa = np.asarray(Q, dtype=float)
-    ha = np.asarray(h, dtype=float)
-    w = np.asarray(weight)
-    if w.ndim != 2:
-        raise ProblemError(f"weight must have shape (B, T), got {w.shape}.")
-    B, T = w.shape
-    key = (
-        Fa.shape,
-        Fa.tobytes(),
-        Qa.shape,
-        Qa.tobytes(),
-        ha.shape,
-        ha.tobytes(),
-        T,
-        B,
-    )
-    with _CACHE_LOCK:
-        smoother = _CACHE.get(key)
-        if smoother is not None:
-            _CACHE.move_to_end(key)
-    if smoother is None:
-        smoother = BandedSmoother(Fa, Qa, ha, T, B)
-        with _CACHE_LOCK:
-            _CACHE[key] = smoother
-            while len(_CACHE) > _CACHE_SIZE:
-                _CACHE.popitem(last=False)
-    return smoother.solve(r, x0, y, weight, refine=refine, check=check, threads=threads)
