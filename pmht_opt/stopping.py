@@ -18,6 +18,7 @@ objective.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -245,6 +246,35 @@ def fired(criterion: StoppingCriterion, progress: Progress) -> str | None:
                 return name
         return None
     return type(criterion).__name__ if criterion(progress) else None
+
+
+class Watched:
+    """A solver's own per-iteration hook turned into this module's contract.
+
+    Called with the solver's best score after each of its iterations (``watched(score) -> bool``,
+    the form PyVRP's and OR-Tools' stopping hooks take), it keeps the scores, calls ``callback``
+    with a :class:`Progress` (stage ``"ordering"``) and says whether ``stop`` says stop. ``convert``
+    maps the solver's score to the scenario's units; ``t0`` is the run's start
+    (``time.perf_counter()``).
+    """
+
+    def __init__(
+        self,
+        stop: StoppingCriterion | None,
+        callback: ProgressObserver | None,
+        convert: Callable[[float], float],
+        t0: float,
+    ) -> None:
+        self.stop, self.callback, self.convert, self.t0 = stop, callback, convert, t0
+        self.scores: list[float] = [math.inf]
+
+    def __call__(self, score: float) -> bool:
+        self.scores.append(min(self.scores[-1], self.convert(float(score))))
+        elapsed = time.perf_counter() - self.t0
+        progress = Progress(len(self.scores) - 1, list(self.scores), elapsed, True, "ordering")
+        if self.callback is not None:
+            self.callback(progress)
+        return bool(self.stop is not None and self.stop(progress))
 
 
 def iteration_limit(criterion: StoppingCriterion) -> int | None:

@@ -7,6 +7,8 @@ TourResult`` registered in :data:`METHODS`. OR-Tools and PyVRP are imported only
 from __future__ import annotations
 
 import inspect
+import math
+import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -16,6 +18,14 @@ from pmht_opt.ordering.ortools_ import solve_ortools
 from pmht_opt.ordering.pyvrp_ import solve_pyvrp
 from pmht_opt.ordering.tour import TourResult, check_routes, route_costs, route_legs, tour_distance
 from pmht_opt.scenario import Scenario
+from pmht_opt.stopping import (
+    AnyOf,
+    Progress,
+    ProgressObserver,
+    StoppingCriterion,
+    as_criterion,
+    check_callback,
+)
 
 #: Ordering methods by name.
 METHODS: dict[str, Callable[..., TourResult]] = {
@@ -25,7 +35,9 @@ METHODS: dict[str, Callable[..., TourResult]] = {
 }
 
 
-def order_locales(scenario: Scenario, method: str = "ga", **options: Any) -> TourResult:
+def order_locales(
+    scenario: Scenario, method: str = "ga", *, stop: Any = None, callback: Any = None, **options: Any
+) -> TourResult:
     """Order the locales into one route per platform: open (the paper's problem) or, with
     ``closed=True``, back to each platform's start (return to base; every method takes ``closed``).
 
@@ -36,10 +48,17 @@ def order_locales(scenario: Scenario, method: str = "ga", **options: Any) -> Tou
     method
         ``"ga"`` (:func:`solve_ga_tsp`, the paper's baseline), ``"ortools"`` (:func:`solve_ortools`,
         near-optimal; needs the ``ortools`` extra) or ``"pyvrp"`` (:func:`solve_pyvrp`, near-optimal
-        and deterministic for a seed; needs the ``pyvrp`` extra).
+        and deterministic for a seed).
+    stop
+        When the method's search ends, beside its own limits: a stopping criterion of
+        :mod:`pmht_opt.stopping` (or a list of them), asked after every iteration (the GA's
+        generations, PyVRP's iterations, OR-Tools' solutions), as :func:`pmht_opt.plan` asks it.
+    callback
+        ``callback(progress)`` after every iteration, with a :class:`~pmht_opt.stopping.Progress`
+        (stage ``"ordering"``; scores are the best tour's cost so far).
     options
         Keyword options of the chosen method, e.g. ``seed``, ``iterations``, ``min_tour``, ``operators``
-        (``"improved"`` or the paper's ``"kirk"``), ``restart``, ``stop`` for the GA or ``time_limit``,
+        (``"improved"`` or the paper's ``"kirk"``), ``restart`` for the GA or ``time_limit``,
         ``min_tour`` for OR-Tools, ``seed``, ``iterations``, ``no_improvement``, ``min_tour`` for PyVRP.
 
     Raises
@@ -49,7 +68,37 @@ def order_locales(scenario: Scenario, method: str = "ga", **options: Any) -> Tou
     """
     if not isinstance(scenario, Scenario):
         raise ConfigError(f"scenario: expected a Scenario, got {type(scenario).__name__}.")
-    return ordering_method(method, options)(scenario, **options)
+    solve = ordering_method(method, options)
+    criterion = None if stop is None else as_criterion(stop)
+    observer = check_callback(callback)
+    if method == "ga" and (criterion is not None or observer is not None):
+        options = _ga_observed(options, criterion, observer)
+    elif criterion is not None or observer is not None:
+        options = {**options, "stop": criterion, "callback": observer}
+    return solve(scenario, **options)
+
+
+def _ga_observed(
+    options: dict[str, Any], stop: StoppingCriterion | None, callback: ProgressObserver | None
+) -> dict[str, Any]:
+    """The GA's options with ``stop`` joined to its own and ``callback`` fed :class:`Progress`
+    records (the GA's own ``callback`` option takes ``(iteration, best_cost)``)."""
+    out = dict(options)
+    if stop is not None:
+        own = out.get("stop")
+        out["stop"] = stop if own is None else AnyOf((own, stop))
+    if callback is not None:
+        if out.get("callback") is not None:
+            raise ConfigError("callback: give the GA's own callback option or callback=, not both.")
+        t0 = time.perf_counter()
+        scores: list[float] = [math.inf]
+
+        def report(iteration: int, best: float) -> None:
+            scores.append(best)
+            callback(Progress(iteration + 1, list(scores), time.perf_counter() - t0, True, "ordering"))
+
+        out["callback"] = report
+    return out
 
 
 def ordering_method(method: Any, options: Mapping[str, Any] | None = None) -> Callable[..., TourResult]:

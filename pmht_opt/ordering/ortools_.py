@@ -34,6 +34,7 @@ import numpy as np
 from pmht_opt.exceptions import ConfigError, MissingDependencyError, SolverError
 from pmht_opt.ordering.tour import TourResult, _check_closed, check_count, check_min_tour, tour_distance
 from pmht_opt.scenario import Scenario
+from pmht_opt.stopping import ProgressObserver, StoppingCriterion, Watched
 
 #: Integer cost of the longest arc; leaves int64 headroom for OR-Tools' sums and GLS penalties.
 COST_SCALE_MAX = 1_000_000_000
@@ -154,6 +155,8 @@ def solve_ortools(
     solution_limit: int | None = None,
     log_search: bool = False,
     closed: bool = False,
+    stop: StoppingCriterion | None = None,
+    callback: ProgressObserver | None = None,
 ) -> TourResult:
     """Order the locales with OR-Tools routing: routes from per-platform starts, minimum distance.
 
@@ -183,6 +186,9 @@ def solve_ortools(
         Let OR-Tools log its search to stderr.
     closed
         Return to base: each vehicle ends at its own start and the cost includes that leg.
+    stop, callback
+        A stopping criterion asked, and ``callback(progress)`` called, at every solution the search
+        finds (:mod:`pmht_opt.stopping`; scores are the best cost so far in the scenario's units).
 
     Returns
     -------
@@ -212,6 +218,11 @@ def solve_ortools(
     try:
         pywrapcp, enums = _import_ortools()
     except _LoadError:
+        if stop is not None or callback is not None:
+            raise ConfigError(
+                "stop: OR-Tools runs in a process of its own here (another library holds its solver "
+                "symbols), where a stopping criterion or callback cannot follow it; use solution_limit."
+            ) from None
         # Solve in a fresh process, where nothing else has claimed the HiGHS symbols.
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(1, mp_context=ctx) as pool:
@@ -220,7 +231,7 @@ def solve_ortools(
             )
             return job.result()
     settings = _Settings(limit, solution_limit, min_tour, first, meta, log_search, closed)
-    return _solve(scenario, settings, pywrapcp, enums)
+    return _solve(scenario, settings, pywrapcp, enums, stop, callback)
 
 
 @dataclass(frozen=True)
@@ -290,18 +301,30 @@ def _routes(solution: Any, manager: Any, routing: Any, M: int) -> list[np.ndarra
     return routes
 
 
-def _solve(scenario: Scenario, settings: _Settings, pywrapcp: Any, enums: Any) -> TourResult:
+def _solve(
+    scenario: Scenario,
+    settings: _Settings,
+    pywrapcp: Any,
+    enums: Any,
+    stop: StoppingCriterion | None = None,
+    callback: ProgressObserver | None = None,
+) -> TourResult:
     N, M = scenario.n_locales, scenario.n_platforms
     t0 = time.perf_counter()
     manager, routing, scale = _model(scenario, settings, pywrapcp)
     penalty = _shortfall_penalty(N, M, settings.closed)
     improvements: list[float] = []
+    watched = Watched(stop, callback, lambda cost: cost / scale, t0)
 
     def record() -> None:
         value = routing.CostVar().Value()
         # Solutions short of min_tour carry a penalty larger than any tour: not part of the history.
         if value < penalty and (not improvements or value / scale < improvements[-1]):
             improvements.append(value / scale)
+        # Only solutions that meet min_tour count as the search's iterations: stopping before one
+        # would leave no ordering to return.
+        if value < penalty and (stop is not None or callback is not None) and watched(value):
+            routing.solver().FinishCurrentSearch()
 
     routing.AddAtSolutionCallback(record)
     solution = routing.SolveWithParameters(_search_parameters(settings, pywrapcp, enums))

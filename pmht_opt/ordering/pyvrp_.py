@@ -49,6 +49,7 @@ import numpy as np
 from pmht_opt.exceptions import ConfigError, MissingDependencyError, SolverError
 from pmht_opt.ordering.tour import TourResult, _check_closed, check_count, check_min_tour, tour_distance
 from pmht_opt.scenario import Scenario
+from pmht_opt.stopping import ProgressObserver, StoppingCriterion, Watched
 
 #: Integer cost of the longest arc at most (relative rounding of about 5e-9 per arc).
 COST_SCALE_MAX = 100_000_000
@@ -166,6 +167,8 @@ def solve_pyvrp(
     no_improvement: int | None = None,
     min_tour: int = 1,
     closed: bool = False,
+    stop: StoppingCriterion | None = None,
+    callback: ProgressObserver | None = None,
 ) -> TourResult:
     """Order the locales with PyVRP: routes from per-platform starts, minimum total distance.
 
@@ -184,6 +187,9 @@ def solve_pyvrp(
         Minimum locales per route, ``>= 1`` with ``min_tour * M <= N``.
     closed
         Return to base: each vehicle ends at its own start and the cost includes that leg.
+    stop, callback
+        A stopping criterion asked, and ``callback(progress)`` called, after every iteration of the
+        search (:mod:`pmht_opt.stopping`; scores are the best cost so far in the scenario's units).
 
     Returns
     -------
@@ -206,14 +212,17 @@ def solve_pyvrp(
     closed = _check_closed(closed)
     _import_pyvrp()
     from pyvrp import solve
-    from pyvrp.stop import MaxIterations, MultipleCriteria, NoImprovement, StoppingCriterion
+    from pyvrp.stop import MaxIterations, MultipleCriteria, NoImprovement
 
     N, M = scenario.n_locales, scenario.n_platforms
     t0 = time.perf_counter()
     data, scale, penalty = problem_data(scenario, min_tour, closed)
-    criteria: list[StoppingCriterion] = [MaxIterations(iterations)]
+    criteria: list[Any] = [MaxIterations(iterations)]
     if no_improvement is not None:
         criteria.append(NoImprovement(no_improvement))
+    if stop is not None or callback is not None:
+        offset0 = penalty * N if min_tour > 1 else 0
+        criteria.append(Watched(stop, callback, lambda cost: (cost - offset0) / scale, t0))
     result = solve(data, stop=MultipleCriteria(criteria), seed=seed, collect_stats=True, display=False)
     wall = time.perf_counter() - t0
     routes = [np.zeros(0, dtype=np.intp) for _ in range(M)]
