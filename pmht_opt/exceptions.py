@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import solvers.exceptions as _qp
+
 
 class PmhtOptError(Exception):
     """Base class of every error raised by pmht-opt."""
@@ -15,8 +17,11 @@ class ConfigError(PmhtOptError, ValueError):
     """A planner configuration or parameter that is out of range; the message names the field."""
 
 
-class UnknownSolverError(ConfigError):
-    """A solver name that is unknown or whose package is not installed; the message lists the others."""
+class UnknownSolverError(ConfigError, _qp.UnknownSolverError):
+    """A solver name that is unknown or whose package is not installed; the message lists the others.
+
+    The same error as :class:`solvers.UnknownSolverError` (a subclass of it), raised where the name was
+    given to pmht-opt: one ``except`` catches it from either layer."""
 
 
 class SolverError(PmhtOptError, RuntimeError):

@@ -3,6 +3,8 @@ callback contract."""
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -34,7 +36,7 @@ def test_every_ordering_takes_the_same_stop_and_reports_the_same_record(method: 
     assert [p.iteration for p in seen] == [1, 2, 3, 4, 5]
     # Scores are the best tour's cost so far: never rising, the last one the tour returned.
     best = [p.scores[-1] for p in seen]
-    assert all(b <= a for a, b in zip(best, best[1:], strict=False))
+    assert all(b <= a for a, b in itertools.pairwise(best))
     assert best[-1] == pytest.approx(tour.total_distance, rel=1e-6)
 
 
