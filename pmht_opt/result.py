@@ -140,7 +140,7 @@ class PlanResult:
             f"PlanResult({label}{self.planner or 'plan'}: {sc.n_platforms} platforms, {sc.n_locales} "
             f"locales, T={sc.horizon}, solver={self.solver!r}, iterations={self.n_iterations}, "
             f"distance={self.total_distance:.4g}, "
-            f"coverage@{sc.coverage_radius:g}={self.coverage():.0%}, max violation={self.max_violation:.1e})"
+            f"coverage@{sc.radius_text}={self.coverage():.0%}, max violation={self.max_violation:.1e})"
         )
 
     @property
@@ -172,12 +172,15 @@ class PlanResult:
         consecutive positions (docs/model.md section 11)."""
         return miss_distances(self.scenario.locales, self.positions)
 
-    def _radius(self, radius: object) -> float:
+    def _radius(self, radius: object) -> float | np.ndarray:
+        """``radius`` checked, or the scenario's coverage radius (one number, or one per locale)."""
         if radius is None:
             return self.scenario.coverage_radius
+        if isinstance(radius, np.ndarray):
+            return self.scenario.replace(coverage_radius=radius).coverage_radius
         return positive_number("radius", radius, allow_zero=True)
 
-    def coverage(self, radius: float | None = None) -> float:
+    def coverage(self, radius: float | np.ndarray | None = None) -> float:
         """Fraction of locales within ``radius`` of some platform's path (docs/model.md section 11).
 
         ``radius`` defaults to the scenario's :attr:`~pmht_opt.Scenario.coverage_radius`. A locale
@@ -186,7 +189,7 @@ class PlanResult:
         """
         return 1.0 - self.missed_locales(radius).size / self.scenario.n_locales
 
-    def missed_locales(self, radius: float | None = None) -> np.ndarray:
+    def missed_locales(self, radius: float | np.ndarray | None = None) -> np.ndarray:
         """Indices of the locales further than ``radius`` (default: the scenario's) from every path."""
         return missed(self.miss_distance, self._radius(radius))
 
@@ -246,13 +249,13 @@ class PlanResult:
         """Largest violation of any constraint (0 without constraints or when all hold)."""
         return max((r.max_violation for r in self.constraint_reports()), default=0.0)
 
-    def metrics(self, radius: float | None = None) -> dict[str, Any]:
+    def metrics(self, radius: float | np.ndarray | None = None) -> dict[str, Any]:
         """The headline metrics as plain Python values (for tables and JSON)."""
         rho = self._radius(radius)
         return {
             "total_distance": self.total_distance,
             "coverage": self.coverage(rho),
-            "coverage_radius": rho,
+            "coverage_radius": rho.tolist() if isinstance(rho, np.ndarray) else rho,
             "missed_locales": self.missed_locales(rho).tolist(),
             "mean_miss_distance": float(np.mean(self.miss_distance)),
             "max_miss_distance": float(np.max(self.miss_distance)),

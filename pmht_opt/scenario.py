@@ -70,9 +70,11 @@ class Scenario:
         A label for reports: any text (files write it as UTF-8).
     coverage_radius
         The sensor footprint ``rho``: a locale counts as covered when some platform's path passes
-        within ``rho`` of it (docs/model.md section 11). Used by the coverage metrics, guaranteed visits
-        and the coverage planner unless they are given their own radius. Default 0.3, three standard
-        deviations of the paper's penalty (``r = 0.01``); in ``(0, 1e7]``.
+        within ``rho`` of it (docs/model.md section 11). One number for every locale, or one per
+        locale (an ``(N,)`` array: a target's own radius, as in the Close-Enough TSP's instances with
+        random radii). Used by the coverage metrics, guaranteed visits, the coverage planner and the
+        exports unless they are given their own radius. Default 0.3, three standard deviations of the
+        paper's penalty (``r = 0.01``); each in ``(0, 1e7]``.
     """
 
     locales: np.ndarray
@@ -83,7 +85,7 @@ class Scenario:
     r: float = 1e-2
     bounds: Bounds | None = None
     name: str = ""
-    coverage_radius: float = 0.3
+    coverage_radius: float | np.ndarray = 0.3
     initial_states: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -104,9 +106,7 @@ class Scenario:
             ("r", validation.R_RANGE),
         ):
             setattr(self, key, validation.real(key, getattr(self, key), ScenarioError, lo, hi))
-        self.coverage_radius = validation.real(
-            "coverage_radius", self.coverage_radius, ScenarioError, 0.0, validation.RADIUS_MAX, lo_open=True
-        )
+        self.coverage_radius = _radius(self.coverage_radius, self.locales.shape[0])
         if self.bounds is None:
             lo = self.locales.min(axis=0)
             hi = self.locales.max(axis=0)
@@ -117,6 +117,16 @@ class Scenario:
         else:
             self.bounds = validation.box("bounds", self.bounds, ScenarioError)
         self.name = validation.text("name", self.name, ScenarioError)
+
+    @property
+    def radii(self) -> np.ndarray:
+        """``(N,)`` every locale's coverage radius (the one number repeated, or the locales' own)."""
+        return np.broadcast_to(np.asarray(self.coverage_radius, dtype=float), (self.n_locales,))
+
+    @property
+    def radius_text(self) -> str:
+        """The coverage radius in words: ``"0.3"``, or ``"0.5-2"`` for radii of their own."""
+        return describe_radius(self.coverage_radius)
 
     @property
     def n_locales(self) -> int:
@@ -155,7 +165,11 @@ class Scenario:
             "q": self.q,
             "r": self.r,
             "bounds": list(self.bounds) if self.bounds is not None else None,
-            "coverage_radius": self.coverage_radius,
+            "coverage_radius": (
+                self.coverage_radius.tolist()
+                if isinstance(self.coverage_radius, np.ndarray)
+                else self.coverage_radius
+            ),
             "locales": self.locales.tolist(),
             "starts": self.starts.tolist(),
         }
@@ -230,6 +244,41 @@ class Scenario:
             raise ScenarioError(f"{path.name}: {err}") from err
         except TypeError as err:
             raise ScenarioError(f"{path.name}: malformed scenario ({err}).") from err
+
+
+def _radius(value: Any, n_locales: int) -> float | np.ndarray:
+    """A coverage radius: one number, or one per locale (all equal ones collapse to the number)."""
+    if validation.is_real(value) or isinstance(value, str) or isinstance(value, bool):
+        return validation.real(
+            "coverage_radius", value, ScenarioError, 0.0, validation.RADIUS_MAX, lo_open=True
+        )
+    arr = validation.real_array("coverage_radius", value, ScenarioError)
+    if arr.ndim == 0:
+        return _radius(float(arr), n_locales)
+    if arr.shape != (n_locales,):
+        raise ScenarioError(
+            f"coverage_radius: expected one number or one per locale ({n_locales},), got shape {arr.shape}."
+        )
+    bad = ~np.isfinite(arr) | (arr <= 0) | (arr > validation.RADIUS_MAX)
+    if np.any(bad):
+        n = int(np.flatnonzero(bad)[0])
+        raise ScenarioError(
+            f"coverage_radius[{n}]: expected a number in (0, {validation.RADIUS_MAX:g}], "
+            f"got {float(arr[n]):g}."
+        )
+    if np.all(arr == arr[0]):
+        return float(arr[0])
+    arr = arr.astype(float).copy()
+    arr.setflags(write=False)
+    return arr
+
+
+def describe_radius(radius: float | np.ndarray) -> str:
+    """A coverage radius in words: ``"0.3"``, or the range ``"0.5-2"`` of radii of their own."""
+    arr = np.asarray(radius, dtype=float)
+    if arr.ndim == 0 or arr.min() == arr.max():
+        return f"{float(arr.flat[0]):g}"
+    return f"{float(arr.min()):g}-{float(arr.max()):g}"
 
 
 ScenarioKind = Literal["A", "B", "C"]

@@ -83,9 +83,9 @@ def measure(sc: po.Scenario, positions: np.ndarray, constraints: Sequence[po.Con
             size = float(np.max(np.linalg.norm(poly - poly.mean(axis=0), axis=1)))
             value = float(_segment_polygon_depth(a, b, poly).max()) / size
         elif isinstance(con, po.VisitAll):
-            radius = con.radius if con.radius is not None else sc.coverage_radius
+            radii = np.broadcast_to(con.radius_for(sc), (sc.n_locales,))
             miss = np.min([point_polyline_distance(sc.locales, p) for p in positions], axis=0)
-            value = float(miss.max() - radius) / radius
+            value = float(np.max((miss - radii) / radii))
         elif isinstance(con, po.AreaBounds):
             lo = np.array([con.box[0], con.box[2]])
             hi = np.array([con.box[1], con.box[3]])

@@ -21,7 +21,7 @@ from pmht_opt.io import EXAMPLES, Mission, PlannerSettings, example_path, plan_m
 from pmht_opt.mstep import BACKENDS, available_backends
 from pmht_opt.ordering import TourResult, order_locales
 from pmht_opt.result import PlanResult
-from pmht_opt.scenario import paper_scenario
+from pmht_opt.scenario import describe_radius, paper_scenario
 from pmht_opt.stopping import Progress
 
 #: Planners whose EM iterations ``--animate`` can show.
@@ -106,7 +106,7 @@ def report(result: PlanResult, mission: Mission) -> None:
         ("iterations", f"{m['iterations']}" + (" (converged)" if m["converged"] else "")),
         ("annealing", m["anneal"]),
         ("total distance", f"{m['total_distance']:.2f}{u}"),
-        (f"coverage within {m['coverage_radius']:g}{u}", f"{m['coverage']:.1%}"),
+        (f"coverage within {describe_radius(m['coverage_radius'])}{u}", f"{m['coverage']:.1%}"),
         ("mean / max miss distance", f"{m['mean_miss_distance']:.3f} / {m['max_miss_distance']:.3f}{u}"),
         ("locales per platform", " ".join(str(v) for v in m["locales_per_platform"])),
         ("crossings between platforms", str(m["crossings"])),

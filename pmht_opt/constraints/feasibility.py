@@ -64,16 +64,17 @@ def _travel(scenario: Scenario, speed: list[SpeedLimit], accel: list[AccelLimit]
     return step.sum(axis=1)
 
 
-def covering_length(locales: np.ndarray, starts: np.ndarray, radius: float) -> float:
-    """A lower bound on the total length of paths from ``starts`` that pass within ``radius`` of every
-    locale: the minimum spanning forest of the module docstring."""
+def covering_length(locales: np.ndarray, starts: np.ndarray, radius: float | np.ndarray) -> float:
+    """A lower bound on the total length of paths from ``starts`` that pass within ``radius`` (one
+    number, or one per locale) of every locale: the minimum spanning forest of the module docstring."""
     N = locales.shape[0]
+    r = np.broadcast_to(np.asarray(radius, dtype=float), (N,))
     between = np.hypot(*(locales[:, None, :] - locales[None, :, :]).transpose(2, 0, 1))
     to_start = np.hypot(*(locales[:, None, :] - starts[None, :, :]).transpose(2, 0, 1)).min(axis=1)
     # Nodes 0..N-1 the locales, node N every start merged into one root.
     graph = np.zeros((N + 1, N + 1))
-    graph[:N, :N] = np.maximum(between - 2.0 * radius, 0.0)
-    graph[:N, N] = np.maximum(to_start - radius, 0.0)
+    graph[:N, :N] = np.maximum(between - (r[:, None] + r[None, :]), 0.0)
+    graph[:N, N] = np.maximum(to_start - r, 0.0)
     graph[N, :N] = graph[:N, N]
     # Zero-length edges are absent in a sparse graph: give them a length far below any other.
     tiny = 1e-300
@@ -102,7 +103,7 @@ def _check_visits(
     limits: list[Constraint],
     travel: np.ndarray,
 ) -> None:
-    rho = visits.radius_for(scenario)
+    rho = np.broadcast_to(np.asarray(visits.radius_for(scenario), dtype=float), (scenario.n_locales,))
     z, s = scenario.locales, scenario.start_positions
     for ob in _hard(constraints, _Obstacle):
         depth = ob.penetration(z)
@@ -127,7 +128,7 @@ def _check_visits(
     if not limits:
         return
     limit_names = names = " and ".join(c.name for c in limits)
-    reach = np.maximum(np.hypot(*(z[:, None, :] - s[None, :, :]).transpose(2, 0, 1)) - rho, 0.0)  # (N, M)
+    reach = np.maximum(np.hypot(*(z[:, None, :] - s[None, :, :]).transpose(2, 0, 1)) - rho[:, None], 0.0)
     # A platform that must end at a terminal position also has to get there from the locale.
     for end in _hard(constraints, Terminal):
         targets = end.targets(scenario)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -12,31 +12,29 @@ from pmht_opt.constraints.blocks import DEFAULT_SIDES, Block, disc_block
 from pmht_opt.constraints.params import check_sides, positive_number
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.model import POS, PX, PY
-
-if TYPE_CHECKING:
-    from pmht_opt.scenario import Scenario
-
+from pmht_opt.scenario import Scenario, describe_radius
 
 #: Share of the visit radius two visits at one step may use between them (:func:`choose_visits`): 1e-3
 #: inside it, a hundred times the inward back-off of the M-step's hard rows.
 SHARED_RADIUS = 0.999
 
 
-def can_share_step(apart: np.ndarray, radius: float) -> np.ndarray:
-    """Whether discs of ``radius`` whose centres are ``apart`` may be visited at one step: a point must
-    meet both with room to spare (:data:`SHARED_RADIUS`)."""
-    return np.asarray(apart) < 2.0 * SHARED_RADIUS * radius
+def can_share_step(apart: np.ndarray, reach: np.ndarray | float) -> np.ndarray:
+    """Whether two discs whose centres are ``apart`` and whose radii add up to ``reach`` may be visited
+    at one step: a point must meet both with room to spare (:data:`SHARED_RADIUS`)."""
+    return np.asarray(apart) < SHARED_RADIUS * np.asarray(reach)
 
 
-def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np.ndarray]:
+def choose_visits(ctx: ConstraintContext, radius: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(platform (N,), time (N,))`` each locale must be visited at, from ``ctx.estep``.
 
     Each locale takes its MAP ``(platform, time)``, in order of decreasing MAP weight, unless that time
     clashes with a locale already placed on the same platform (or with its start, at ``t = 0``): two
     visits clash when the platform
     would have to cover the distance between the two discs faster than twice the current path's mean
-    speed (two locales more than ``2 radius`` apart at the same step always clash). Two locales share
-    a step only if they lie within ``2 SHARED_RADIUS radius`` (:data:`SHARED_RADIUS`): discs that barely
+    speed (two locales further apart than their radii add up to, at the same step, always clash).
+    ``radius`` is one number or one per locale. Two locales share a step only if they lie within
+    ``SHARED_RADIUS`` of their radii's sum (:data:`SHARED_RADIUS`): discs that barely
     touch leave a single point at which both visits hold (two locales of a unit grid at a visit radius
     of 0.5), which the 1e-5 inward back-off of hard rows (:data:`pmht_opt.mstep.rows.BACKOFF`) makes
     infeasible. A clashing locale
@@ -54,8 +52,10 @@ def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np
     steps = np.diff(ctx.states[:, :, POS], axis=1)
     speed = np.median(np.hypot(steps[..., 0], steps[..., 1]), axis=1)  # (M,) typical step length
     N, M = locales.shape[0], starts.shape[0]
-    # The visits placed so far on each platform: their locales' coordinates and times, in order.
+    radii = np.broadcast_to(np.asarray(radius, dtype=float), (N,))
+    # The visits placed so far on each platform: their locales' coordinates, radii and times, in order.
     placed_xy = np.empty((M, N, 2))
+    placed_r = np.empty((M, N))
     placed_t = np.empty((M, N))
     count = np.zeros(M, dtype=int)
     for n in np.argsort(-best, kind="stable").tolist():
@@ -63,12 +63,13 @@ def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np
         k = int(count[m])
         # The start (t = 0) counts as a placed visit, for speed only: a locale 1 unit from the start
         # cannot be met at t = 1.
-        start_gap = max(float(np.hypot(*(starts[m] - locales[n]))) - radius, 0.0)
+        start_gap = max(float(np.hypot(*(starts[m] - locales[n]))) - radii[n], 0.0)
         vref = 2.0 * max(float(speed[m]), 1e-9)
         apart = np.hypot(placed_xy[m, :k, 0] - locales[n, 0], placed_xy[m, :k, 1] - locales[n, 1])
-        gap = np.maximum(apart - 2.0 * radius, 0.0)
+        reach = placed_r[m, :k] + radii[n]
+        gap = np.maximum(apart - reach, 0.0)
         # At one step, discs that barely touch clash too (docstring).
-        at_once = ~can_share_step(apart, radius)
+        at_once = ~can_share_step(apart, reach)
         if t * vref < start_gap or _clash_at(t, placed_t[m, :k], gap, at_once, vref):
             # Most probable first; among equally probable (e.g. underflowed) times, the nearest.
             wn = es.locale_weights(n)[:, m]  # (T,)
@@ -81,7 +82,7 @@ def choose_visits(ctx: ConstraintContext, radius: float) -> tuple[np.ndarray, np
             if pick.size:
                 t = int(order[pick[0]])
         time[n] = t
-        placed_xy[m, k], placed_t[m, k] = locales[n], t
+        placed_xy[m, k], placed_r[m, k], placed_t[m, k] = locales[n], radii[n], t
         count[m] = k + 1
     return platform, time
 
@@ -116,6 +117,18 @@ def _clashes(
     return np.any(same, axis=1) | (np.abs(t) * vref < start_gap)
 
 
+def _visit_radius(name: str, radius: Any) -> float | np.ndarray | None:
+    """A visit radius: ``None``, a positive number, or an array of them (one per locale)."""
+    if radius is None:
+        return None
+    if np.ndim(radius) == 0:
+        return positive_number(name, radius)
+    arr = np.asarray(radius, dtype=float) if not isinstance(radius, np.ndarray) else radius.astype(float)
+    if arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+        raise ConfigError(f"{name}: expected a positive number or one per locale, got {radius!r}.")
+    return arr
+
+
 class VisitAll(Constraint):
     """Every locale within ``radius`` of its MAP platform's position at its MAP time (hard by default).
 
@@ -134,8 +147,8 @@ class VisitAll(Constraint):
     Parameters
     ----------
     radius
-        Visit radius; ``None`` (default) takes the scenario's
-        :attr:`~pmht_opt.Scenario.coverage_radius`, its sensor footprint.
+        Visit radius: one number, one per locale (an ``(N,)`` array), or ``None`` (default) for the
+        scenario's :attr:`~pmht_opt.Scenario.coverage_radius`, its sensor footprint.
     warmup
         EM iterations run without the constraint first, so the MAP times come from paths that already
         pass near the locales (from the standing start every time is equally likely). They are counted
@@ -161,7 +174,7 @@ class VisitAll(Constraint):
 
     def __init__(
         self,
-        radius: float | None = None,
+        radius: float | np.ndarray | None = None,
         warmup: int = 10,
         sides: int = DEFAULT_SIDES,
         ramp: int = 4,
@@ -169,7 +182,7 @@ class VisitAll(Constraint):
         **kwargs: Any,
     ) -> None:
         super().__init__(**kwargs)
-        self.radius = None if radius is None else positive_number(f"{type(self).__name__}.radius", radius)
+        self.radius = _visit_radius(f"{type(self).__name__}.radius", radius)
         if isinstance(warmup, bool) or not isinstance(warmup, (int, np.integer)) or warmup < 0:
             raise ConfigError(f"VisitAll.warmup: expected an integer >= 0, got {warmup!r}.")
         self.warmup: int | None = int(warmup)
@@ -183,16 +196,25 @@ class VisitAll(Constraint):
 
     @property
     def name(self) -> str:
-        label = "" if self.radius is None else f"{self.radius:g}"
+        label = "" if self.radius is None else describe_radius(self.radius)
         return f"{type(self).__name__}({label})"
 
     def scale(self, scenario: Scenario) -> float:
-        """The visit radius."""
-        return self.radius_for(scenario)
+        """The smallest visit radius: violations are judged relative to it."""
+        return float(np.min(self.radius_for(scenario)))
 
-    def radius_for(self, scenario: Scenario) -> float:
-        """The visit radius on ``scenario``: the given one, or the scenario's coverage radius."""
+    def radius_for(self, scenario: Scenario) -> float | np.ndarray:
+        """The visit radius on ``scenario``: the given one, or the scenario's coverage radius (one
+        number, or one per locale)."""
         return scenario.coverage_radius if self.radius is None else self.radius
+
+    def check_scenario(self, scenario: Scenario) -> None:
+        super().check_scenario(scenario)
+        if isinstance(self.radius, np.ndarray) and self.radius.shape != (scenario.n_locales,):
+            raise ConfigError(
+                f"{type(self).__name__}.radius: expected one radius per locale ({scenario.n_locales},), "
+                f"got shape {self.radius.shape}."
+            )
 
     def visits(self, ctx: ConstraintContext) -> tuple[np.ndarray, np.ndarray]:
         """``(platform (N,), time (N,))`` of the visit each locale must make in this iteration."""

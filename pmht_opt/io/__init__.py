@@ -15,7 +15,7 @@ from pmht_opt.io.examples import EXAMPLES, example_mission, example_path
 from pmht_opt.io.frame import Frame
 from pmht_opt.io.geojson import export_geojson, plan_geojson, read_geojson_paths
 from pmht_opt.io.mission import Mission, load_mission, mission_from_dict, save_mission
-from pmht_opt.io.points import read_points
+from pmht_opt.io.points import read_points, read_radii
 from pmht_opt.io.qgc import export_qgc_plan, qgc_paths, read_qgc_plan
 from pmht_opt.io.run import order_mission, plan_mission
 from pmht_opt.io.settings import PlannerSettings
@@ -40,5 +40,6 @@ __all__ = [
     "read_plan_csv",
     "read_points",
     "read_qgc_plan",
+    "read_radii",
     "save_mission",
 ]

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from pmht_opt.exceptions import ScenarioError
+from pmht_opt.geometry.coverage import COVERAGE_RTOL
 from pmht_opt.geometry.earth import GeoOrigin, check_origin
 from pmht_opt.io.frame import GEO_DECIMALS
 from pmht_opt.result import check_plan
@@ -68,6 +69,7 @@ def plan_geojson(result: Any, origin: GeoOrigin | None = None) -> dict[str, Any]
             }
         )
     locale_xy = _coords(sc.locales, origin)
+    radii = sc.radii
     for n in range(sc.n_locales):
         step = int(result.visit_time[n])
         features.append(
@@ -81,7 +83,8 @@ def plan_geojson(result: Any, origin: GeoOrigin | None = None) -> dict[str, Any]
                     "visit_step": step,
                     "visit_time": step * sc.dt,
                     "miss_distance": float(miss[n]),
-                    "covered": bool(miss[n] <= sc.coverage_radius * (1 + 1e-6)),
+                    "radius": float(radii[n]),
+                    "covered": bool(miss[n] <= radii[n] * (1 + COVERAGE_RTOL)),
                 },
             }
         )
@@ -95,7 +98,12 @@ def plan_geojson(result: Any, origin: GeoOrigin | None = None) -> dict[str, Any]
             }
         )
     out: dict[str, Any] = {"type": "FeatureCollection"}
-    meta: dict[str, Any] = {"scenario": sc.name, "coverage_radius": sc.coverage_radius, "dt": sc.dt}
+    radius = sc.coverage_radius
+    meta: dict[str, Any] = {
+        "scenario": sc.name,
+        "coverage_radius": radius.tolist() if isinstance(radius, np.ndarray) else radius,
+        "dt": sc.dt,
+    }
     if origin is None:
         meta["frame"] = "plane"
     else:

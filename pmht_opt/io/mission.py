@@ -51,7 +51,7 @@ from pmht_opt.geometry.earth import GeoOrigin, check_origin
 from pmht_opt.io import fields
 from pmht_opt.io.constraints import read_constraint, write_constraint
 from pmht_opt.io.frame import Frame
-from pmht_opt.io.points import read_points
+from pmht_opt.io.points import read_points, read_radii
 from pmht_opt.io.settings import PlannerSettings, read_settings
 from pmht_opt.scenario import Scenario
 from pmht_opt.toml_writer import dumps
@@ -132,7 +132,7 @@ class Mission:
             "dt": sc.dt,
             "q": sc.q,
             "r": sc.r,
-            "coverage_radius": sc.coverage_radius,
+            "coverage_radius": sc.to_dict()["coverage_radius"],
             "bounds": None if self.bounds_assumed or sc.bounds is None else list(sc.bounds),
             "locales": frame.out_points(sc.locales),
         }
@@ -162,6 +162,13 @@ def _read_scenario(data: dict[str, Any], frame: Frame, base: Path) -> tuple[Scen
         if isinstance(value, str):
             kind = "locale" if key == "locales" else "start"
             kwargs[key] = read_points(base / value, frame, kind)
+            radii = read_radii(base / value) if key == "locales" else None
+            if radii is not None:
+                if "coverage_radius" in data:
+                    raise ScenarioError(
+                        f"coverage_radius: {value} gives each locale its own radius; give one or the other."
+                    )
+                kwargs["coverage_radius"] = radii
         elif frame.geo:
             kwargs[key] = frame.points(key, value)
         else:
@@ -172,7 +179,7 @@ def _read_scenario(data: dict[str, Any], frame: Frame, base: Path) -> tuple[Scen
         "dt": fields.number,
         "q": fields.number,
         "r": fields.number,
-        "coverage_radius": fields.number,
+        "coverage_radius": fields.number_or_numbers,
     }
     for key, read in readers.items():
         if key in data:

@@ -1,8 +1,9 @@
 """Locales and starts from CSV and GeoJSON files.
 
 * **CSV**: a header row, then one point per row. Columns ``x`` and ``y`` (the plane) or ``lat`` and
-  ``lon`` (degrees, for a geo-referenced mission; ``latitude``/``longitude`` also read); other
-  columns (names, notes) are ignored.
+  ``lon`` (degrees, for a geo-referenced mission; ``latitude``/``longitude`` also read), and for
+  locales an optional ``radius`` column (each locale's own coverage radius, in the scenario's units:
+  metres for a geo-referenced mission, :func:`read_radii`); other columns (names, notes) are ignored.
 * **GeoJSON** (RFC 7946): every ``Point`` and ``MultiPoint`` of a FeatureCollection, a Feature or a
   bare geometry, coordinates ``[lon, lat]``. When features carry a ``kind`` property (as the files
   written by :func:`~pmht_opt.io.export_geojson` do), only those of the wanted kind are read
@@ -53,6 +54,49 @@ def read_points(path: str | Path, frame: Frame | None = None, kind: str = "local
     if suffix in (".geojson", ".json"):
         return _read_geojson(path.name, text, frame, kind)
     raise ScenarioError(f"{path.name}: points are read from .csv or .geojson files.")
+
+
+def read_radii(path: str | Path) -> list[float] | None:
+    """The locales' own coverage radii of a point file: a CSV's ``radius`` column, or the ``radius``
+    property of a GeoJSON file's locale features (as :func:`~pmht_opt.io.export_geojson` writes
+    them); ``None`` where the file has none.
+
+    Raises
+    ------
+    ScenarioError
+        A radius that is not a positive number, naming the row (or feature).
+    """
+    path = Path(path)
+    text = fields.text(path, "utf-8-sig")
+    if path.suffix.lower() == ".csv":
+        rows = [r for r in csv.reader(text.splitlines()) if any(c.strip() for c in r)]
+        if not rows:
+            return None
+        col = _column(path.name, rows[0], ("radius",))
+        if col is None:
+            return None
+        cells: list[tuple[int, Any]] = [
+            (line, row[col].strip() if col < len(row) else "") for line, row in enumerate(rows[1:], 2)
+        ]
+    else:
+        try:
+            obj = json.loads(text)
+        except (RecursionError, ValueError):
+            return None  # read_points names what is wrong with the file
+        found = [props for _, props in _geometries(obj) if props.get("kind", "locale") == "locale"]
+        if not any("radius" in props for props in found):
+            return None
+        cells = [(i + 1, props.get("radius")) for i, props in enumerate(found)]
+    out = []
+    for where, cell in cells:
+        try:
+            value = float(cell)
+        except (TypeError, ValueError):
+            value = float("nan")
+        if not value > 0 or value == float("inf"):
+            raise ScenarioError(f"{path.name}, {where}: radius: expected a positive number, got {cell!r}.")
+        out.append(value)
+    return out
 
 
 def _column(name: str, header: list[str], options: tuple[str, ...]) -> int | None:

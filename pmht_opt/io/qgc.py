@@ -141,7 +141,7 @@ def platform_plan(result: Any, platform: int, origin: GeoOrigin, flight: _Flight
     """The QGroundControl plan (a dict) of one platform of ``result``; see :func:`export_qgc_plan`."""
     sc = result.scenario
     path = np.asarray(result.positions[platform])
-    tol = sc.coverage_radius / 10 if flight.tolerance is None else float(flight.tolerance)
+    tol = float(sc.radii.min()) / 10 if flight.tolerance is None else float(flight.tolerance)
     if not (math.isfinite(tol) and tol > 0):
         raise ConfigError(f"tolerance: expected a positive number of metres, got {flight.tolerance!r}.")
     mine = np.flatnonzero(np.asarray(result.assignment) == platform)

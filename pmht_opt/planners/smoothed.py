@@ -152,15 +152,15 @@ def smooth_tour(
             "tour: it was ordered for a scenario with other locales or starts than this one; order this "
             "scenario's locales (or pass the routes themselves)."
         )
-    if visit_radius is None:
-        visit_radius = scenario.coverage_radius
-    visit_radius = positive_number("visit_radius", visit_radius)
+    radius: float | np.ndarray = (
+        scenario.coverage_radius if visit_radius is None else positive_number("visit_radius", visit_radius)
+    )
     windows = sub_batches(scenario, routes, split)
     N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon
     platform = np.empty(N, dtype=int)
     for m, route in enumerate(routes):
         platform[route] = m
-    visits = TourVisits(platform, windows, visit_radius, sides=sides)
+    visits = TourVisits(platform, windows, radius, sides=sides)
     limit = iteration_limit(stop) or validation.MAX_ITERATIONS
     run_cfg = PMHTConfig.of(
         settings.replace(constraints=(*settings.constraints, visits)),

@@ -72,7 +72,7 @@ class TourVisits(VisitAll):
         self,
         platform: np.ndarray,
         windows: np.ndarray,
-        radius: float | None = None,
+        radius: float | np.ndarray | None = None,
         sides: int = DEFAULT_SIDES,
         **kwargs: Any,
     ) -> None:

@@ -119,7 +119,7 @@ def plot_result(
         who = f"{result.planner} ({result.solver})" if result.planner else result.solver
         title = (
             f"{name}{who}, distance {result.total_distance:.1f}{' ' + u if u else ''}, "
-            f"coverage within {sc.coverage_radius:g}{' ' + u if u else ''}: {result.coverage():.0%}"
+            f"coverage within {sc.radius_text}{' ' + u if u else ''}: {result.coverage():.0%}"
         )
     labels = ("east (m)", "north (m)") if u == "m" else ("x", "y")
     return plot_paths(

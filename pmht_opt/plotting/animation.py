@@ -140,7 +140,7 @@ def _stage(
     ax.set_ylabel(labels[1])
     z = scenario.locales
     ax.plot(z[:, 0], z[:, 1], "x", color="k", ms=5, mew=1.0, ls="none", label="locale")
-    (missed,) = ax.plot([], [], zorder=2, label=f"missed (> {scenario.coverage_radius:g})", **MISSED_STYLE)
+    (missed,) = ax.plot([], [], zorder=2, label=f"missed (> {scenario.radius_text})", **MISSED_STYLE)
     paths = [
         ax.plot([], [], "-", color=platform_colour(m), lw=1.4, label=f"platform {m}")[0] for m in range(M)
     ]

@@ -18,7 +18,7 @@ from pmht_opt.geometry.coverage import missed_locales as missed_locales_of
 from pmht_opt.plotting.marks import direction_arrows, draw_constraint, end_marker, heading
 from pmht_opt.plotting.style import AREA_STYLE, MISSED_STYLE, platform_colour
 from pmht_opt.plotting.view import frame, in_grid
-from pmht_opt.scenario import Scenario
+from pmht_opt.scenario import Scenario, describe_radius
 
 #: Where each kind of legend goes, as matplotlib's ``legend`` options.
 LEGEND_PLACES: dict[str, dict[str, Any]] = {
@@ -103,7 +103,7 @@ def draw_paths(
     if scenario.bounds is not None:
         xmin, xmax, ymin, ymax = scenario.bounds
         ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, label="area", **AREA_STYLE))
-    rho = scenario.coverage_radius if radius is None else float(radius)
+    rho = scenario.radii if radius is None else np.full(scenario.n_locales, float(radius))
     handles = _draw_locales(ax, scenario.locales, lines, rho, assignment, show_radius, grid, unit)
     handles += _draw_platforms(ax, lines, scenario.start_positions, grid)
     handles += _shape_entries(ax, handles)
@@ -134,7 +134,7 @@ def _draw_locales(
     ax: Any,
     z: np.ndarray,
     lines: Sequence[np.ndarray],
-    rho: float,
+    rho: np.ndarray,
     assignment: np.ndarray | None,
     show_radius: bool,
     grid: bool,
@@ -148,8 +148,8 @@ def _draw_locales(
     missed = np.zeros(z.shape[0], dtype=bool)
     missed[missed_locales_of(z, lines, rho)] = True
     if show_radius:
-        for p in z:
-            ax.add_patch(Circle(tuple(p), rho, fill=False, ec="0.6", lw=0.6, ls="--", zorder=1))
+        for p, r in zip(z, rho, strict=True):
+            ax.add_patch(Circle(tuple(p), float(r), fill=False, ec="0.6", lw=0.6, ls="--", zorder=1))
     if assignment is None:
         ax.plot(z[:, 0], z[:, 1], "x", color="k", ms=5, mew=1.0, ls="none", zorder=2)
     else:
@@ -157,7 +157,7 @@ def _draw_locales(
             mine = np.asarray(assignment) == m
             ax.plot(z[mine, 0], z[mine, 1], "x", color=platform_colour(m), ms=5, mew=1.2, ls="none", zorder=2)
     cross = Line2D([], [], marker="x", color="k", ls="none", ms=5)
-    covered = "locale" if grid else f"locale, covered (within {rho:g}{unit} of a path)"
+    covered = "locale" if grid else f"locale, covered (within {describe_radius(rho)}{unit} of a path)"
     handles: list[Any] = [Labelled(cross, covered)]
     if missed.any():
         ring_style = {**MISSED_STYLE, "ms": 6, "mew": 1.0} if grid else MISSED_STYLE
@@ -165,10 +165,10 @@ def _draw_locales(
         ring = Line2D([], [], **ring_style)
         label = f"locale, missed ({int(missed.sum())} of {len(z)})"
         if grid:
-            label = f"missed (> {rho:g}{unit} from every path)"
+            label = f"missed (> {describe_radius(rho)}{unit} from every path)"
         handles.append(Labelled((cross, ring), label))
     if show_radius:
-        radius = f"coverage radius {rho:g}{unit}"
+        radius = f"coverage radius {describe_radius(rho)}{unit}"
         handles.append(Line2D([], [], marker="o", ms=9, mfc="none", mec="0.6", ls="none", label=radius))
     return handles
 

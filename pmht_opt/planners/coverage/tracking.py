@@ -188,7 +188,7 @@ def _clash(steps: np.ndarray, centres: np.ndarray, radius: float) -> bool:
     (:func:`~pmht_opt.constraints.visits.can_share_step`)."""
     same = steps[:, None] == steps[None, :]
     apart = np.hypot(*(centres[:, None, :] - centres[None, :, :]).transpose(2, 0, 1))
-    return bool(np.any(same & ~can_share_step(apart, radius)))
+    return bool(np.any(same & ~can_share_step(apart, 2.0 * radius)))
 
 
 def _visit_steps(t_real: np.ndarray, T: int, apart: np.ndarray) -> np.ndarray:
