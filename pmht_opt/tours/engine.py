@@ -1,0 +1,159 @@
+r"""Plan straight-line routes that meet every disc: an order from PyVRP, then ruin and recreate.
+
+Stages, each measured in the package's study (``studies/cetsp_tours.py``):
+
+1. **Normalise** the problem into the unit box (:mod:`pmht_opt.tours.geometry`): the same tours
+   whatever the units.
+2. **Order** the disc centres with PyVRP (:mod:`pmht_opt.tours.ordering`): a multiple TSP from each
+   vehicle's start, closed or open.
+3. **Polish** that order with the cone program (:mod:`pmht_opt.tours.polish`): the exact turn points;
+   discs the polyline crosses anyway stop being keys.
+4. **Descend** (:mod:`pmht_opt.tours.local`): relocate, drop and 2-opt moves priced with the other turn
+   points fixed, then the cone program again, until neither improves.
+5. **Ruin and recreate**: remove a few neighbouring key discs, put back every disc that is no longer
+   met at its cheapest place, descend; keep the result when it is better. Stops after a number of
+   iterations, or of iterations without a better tour: never on wall time, so the seed fixes the
+   answer.
+
+The answer is checked by :func:`pmht_opt.tours.verify.check_tours` before it is returned.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from pmht_opt.tours.geometry import Frame, unit_frame
+from pmht_opt.tours.local import relocate_pass, repair, ruin, two_opt_pass
+from pmht_opt.tours.ordering import order_points
+from pmht_opt.tours.polish import place, refine
+from pmht_opt.tours.problem import DiscProblem, DiscTours, Progress, TourSettings
+from pmht_opt.tours.tour import Layout, Tour
+from pmht_opt.tours.verify import check_tours
+
+#: Relative improvement that counts as better.
+REL = 1e-12
+
+
+def score(tour: Tour, objective: str) -> tuple[float, float]:
+    """Lexicographic score, lower is better: (total, total) or (longest route, total)."""
+    lengths = tour.lengths()
+    total = float(lengths.sum())
+    return (float(lengths.max()) if objective == "time" else total, total)
+
+
+def better(a: tuple[float, float], b: tuple[float, float]) -> bool:
+    """Whether score ``a`` beats ``b`` by more than the relative tolerance."""
+    if a[0] < b[0] * (1 - REL) - 1e-15:
+        return True
+    return a[0] <= b[0] * (1 + REL) and a[1] < b[1] * (1 - REL) - 1e-15
+
+
+def descend(tour: Tour, settings: TourSettings, rounds: int = 8) -> Tour:
+    """Local search to a local optimum, the cone program after each descent; never worse."""
+    for _ in range(rounds):
+        while relocate_pass(tour, settings.neighbours) + two_opt_pass(tour):
+            pass
+        polished = refine(tour)
+        if polished is tour:
+            return tour
+        tour = polished
+    return tour
+
+
+def initial_tour(layout: Layout, settings: TourSettings) -> Tour:
+    """Every disc a key, in PyVRP's order of the centres, turn points at the centres."""
+    routes = order_points(layout.starts, layout.closed, layout.centres, settings.order_iterations, settings.seed)
+    assert routes is not None
+    return Tour(layout, [list(map(int, r)) for r in routes], [layout.centres[r].copy() for r in routes])
+
+
+def _answer(problem: DiscProblem, frame: Frame, tour: Tour, info: dict[str, object]) -> DiscTours:
+    placed = place(tour)
+    M = problem.n_vehicles
+    turns = [frame.from_unit(tour.pts[m]) for m in range(M)]
+    out = DiscTours(
+        routes=placed.routes,
+        points=frame.from_unit(placed.points),
+        lengths=np.zeros(M),
+        turns=turns,
+        problem=problem,
+        info=info,
+    )
+    lengths = np.array([float(np.hypot(*np.diff(out.vertices(m), axis=0).T).sum()) for m in range(M)])
+    out = DiscTours(out.routes, out.points, lengths, turns, problem, info)
+    # A visit point is the polyline's closest point to the centre; in the user's units, make it the
+    # closest point again (the mapping back rounds), clipped into the disc it covers.
+    return out
+
+
+def plan_tours(
+    problem: DiscProblem,
+    settings: TourSettings | None = None,
+    *,
+    callback: Callable[[Progress], None] | None = None,
+    stop: Callable[[Progress], bool] | None = None,
+) -> DiscTours:
+    """Routes from each vehicle's start that together meet every target's disc.
+
+    Parameters
+    ----------
+    problem
+        Starts, discs and which routes are closed.
+    settings
+        Seed, objective and effort (iteration counts); defaults when None.
+    callback
+        Called with a :class:`Progress` after the first tour and after each iteration.
+    stop
+        A criterion ``stop(progress) -> bool``; the search ends when it returns True.
+
+    Raises
+    ------
+    SolverError
+        If a cone program fails or the answer does not pass the independent check.
+    """
+    settings = settings or TourSettings()
+    t0 = time.perf_counter()
+    frame = unit_frame(problem.starts, problem.centres, problem.radii)
+    layout = Layout(
+        starts=frame.to_unit(problem.starts),
+        closed=np.asarray(problem.closed, dtype=bool),
+        centres=frame.to_unit(problem.centres),
+        radii=frame.length_to_unit(problem.radii),
+    )
+    rng = np.random.default_rng(settings.seed)
+    objective = settings.objective
+    best = descend(refine(initial_tour(layout, settings)), settings)
+    best_score = score(best, objective)
+    scores = [best_score[0] * frame.side]
+    settled = 0
+    it = 0
+
+    def report() -> bool:
+        progress = Progress(it, tuple(scores), time.perf_counter() - t0, settled)
+        if callback is not None:
+            callback(progress)
+        return stop is not None and bool(stop(progress))
+
+    halt = report()
+    n_keys_max = max(1, problem.n_targets)
+    while not halt and it < settings.iterations and settled < settings.patience and problem.n_targets:
+        it += 1
+        cand = best.copy()
+        size = int(rng.integers(settings.ruin_min, settings.ruin_max + 1))
+        ruin(cand, rng, min(size, n_keys_max))
+        repair(cand, rng)
+        cand = descend(cand, settings)
+        cand_score = score(cand, objective)
+        if better(cand_score, best_score):
+            best, best_score, settled = cand, cand_score, 0
+        else:
+            settled += 1
+        scores.append(best_score[0] * frame.side)
+        halt = report()
+    info: dict[str, object] = {"iterations": it, "seed": settings.seed, "history": scores}
+    answer = _answer(problem, frame, best, info)
+    check_tours(answer)
+    return answer

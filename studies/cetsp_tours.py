@@ -1,0 +1,143 @@
+"""Benchmark of the straight-line tour engine on Mennell's close-enough TSP instances.
+
+Runs :func:`pmht_opt.tours.plan_tours` (one vehicle, closed at the depot, per-target radii, default
+settings) on each case of a BKS table and prints, per case: targets, straight length / BKS for each
+seed, the spread of the seeds, the independent coverage check and the time. Results go to a JSON file
+with their provenance.
+
+    python -m studies.cetsp_tours                       # the 16 cases of the shared benchmark
+    python -m studies.cetsp_tours --cases bubbles4 --seeds 0
+    python -m studies.cetsp_tours --table studies/cetsp_extra/bks.csv --name extra
+
+A table is a CSV with at least the columns ``name``, ``file`` (relative to the table), ``radius_factor``
+and ``bks``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import importlib.metadata
+import json
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pmht_opt.tours import DiscProblem, TourSettings, coverage_gaps, plan_tours, read_mennell
+
+DEFAULT_TABLE = Path("/work/shared/benchmarks/cetsp/bks.csv")
+RESULTS = Path(__file__).resolve().parent / "results" / "cetsp_tours"
+
+
+def provenance() -> dict[str, Any]:
+    """Commit (and whether the worktree was clean), date, Python and library versions."""
+    repo = Path(__file__).resolve().parent.parent
+
+    def git(*args: str) -> str:
+        try:
+            return subprocess.run(["git", *args], cwd=repo, capture_output=True, text=True, check=True).stdout.strip()
+        except (OSError, subprocess.SubprocessError):
+            return ""
+
+    versions = {}
+    for name in ("numpy", "scipy", "pyvrp", "clarabel"):
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            continue
+    return {
+        "commit": git("rev-parse", "HEAD"),
+        "clean": git("status", "--porcelain", "--untracked-files=no") == "",
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "python": platform.python_version(),
+        "machine": platform.machine(),
+        "versions": versions,
+    }
+
+
+def run_case(row: dict[str, str], base: Path, seeds: list[int]) -> dict[str, Any]:
+    """Every seed on one case: lengths, ratios, coverage margins and times."""
+    depot, centres, radii = read_mennell(base / row["file"], float(row["radius_factor"]))
+    problem = DiscProblem(depot[None], centres, radii, closed=True)
+    bks = float(row["bks"])
+    runs = []
+    for seed in seeds:
+        t0 = time.perf_counter()
+        tours = plan_tours(problem, TourSettings(seed=seed))
+        wall = time.perf_counter() - t0
+        gap = coverage_gaps(tours, rtol=0.0)
+        runs.append(
+            {
+                "seed": seed,
+                "length": tours.total,
+                "ratio": tours.total / bks,
+                "time": wall,
+                "iterations": tours.info["iterations"],
+                "turns": int(len(tours.turns[0])),
+                # Largest (distance to polyline - radius) / radius: <= 1e-9 is covered.
+                "worst_coverage": float(np.max(gap / radii)) if len(radii) else 0.0,
+            }
+        )
+    ratios = [r["ratio"] for r in runs]
+    return {
+        "name": row["name"],
+        "targets": int(len(radii)),
+        "bks": bks,
+        "runs": runs,
+        "best_ratio": min(ratios),
+        "worst_ratio": max(ratios),
+        "spread": max(ratios) / min(ratios) - 1,
+        "covered": all(r["worst_coverage"] <= 1e-9 for r in runs),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--table", type=Path, default=DEFAULT_TABLE, help="CSV of cases (name, file, radius_factor, bks)")
+    parser.add_argument("--cases", nargs="*", default=None, help="only these case names")
+    parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
+    parser.add_argument("--name", default="benchmark", help="results file stem")
+    parser.add_argument("--no-save", action="store_true", help="print only")
+    args = parser.parse_args(argv)
+    with args.table.open() as fh:
+        rows = [r for r in csv.DictReader(fh) if not args.cases or r["name"] in args.cases]
+    out = {"provenance": provenance(), "table": str(args.table), "seeds": args.seeds, "cases": []}
+    print(f"{'case':22s} {'N':>5s} " + " ".join(f"seed{s:<3d}" for s in args.seeds) + "  spread  cover  time/s")
+    for row in rows:
+        case = run_case(row, args.table.parent, args.seeds)
+        out["cases"].append(case)
+        ratios = " ".join(f"{r['ratio']:7.4f}" for r in case["runs"])
+        times = "/".join(f"{r['time']:.1f}" for r in case["runs"])
+        print(
+            f"{case['name']:22s} {case['targets']:5d} {ratios}  {100 * case['spread']:5.2f}%  "
+            f"{'ok' if case['covered'] else 'FAIL':5s}  {times}",
+            flush=True,
+        )
+    cases = out["cases"]
+    if cases:
+        mean = [float(np.mean([c["runs"][i]["ratio"] for c in cases])) for i in range(len(args.seeds))]
+        out["summary"] = {
+            "mean_ratio_per_seed": mean,
+            "worst_case_ratio": max(c["worst_ratio"] for c in cases),
+            "worst_spread": max(c["spread"] for c in cases),
+            "all_covered": all(c["covered"] for c in cases),
+            "max_time": max(r["time"] for c in cases for r in c["runs"]),
+        }
+        print("mean ratio per seed:", " ".join(f"{m:.4f}" for m in mean))
+        print(f"worst case ratio {out['summary']['worst_case_ratio']:.4f}, worst spread {100 * out['summary']['worst_spread']:.2f}%")
+    if not args.no_save:
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        path = RESULTS / f"{args.name}.json"
+        path.write_text(json.dumps(out, indent=1) + "\n")
+        print(f"written {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
