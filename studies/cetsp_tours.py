@@ -41,7 +41,9 @@ def provenance() -> dict[str, Any]:
 
     def git(*args: str) -> str:
         try:
-            return subprocess.run(["git", *args], cwd=repo, capture_output=True, text=True, check=True).stdout.strip()
+            return subprocess.run(
+                ["git", *args], cwd=repo, capture_output=True, text=True, check=True
+            ).stdout.strip()
         except (OSError, subprocess.SubprocessError):
             return ""
 
@@ -79,7 +81,7 @@ def run_case(row: dict[str, str], base: Path, seeds: list[int]) -> dict[str, Any
                 "ratio": tours.total / bks,
                 "time": wall,
                 "iterations": tours.info["iterations"],
-                "turns": int(len(tours.turns[0])),
+                "turns": len(tours.turns[0]),
                 # Largest (distance to polyline - radius) / radius: <= 1e-9 is covered.
                 "worst_coverage": float(np.max(gap / radii)) if len(radii) else 0.0,
             }
@@ -87,7 +89,7 @@ def run_case(row: dict[str, str], base: Path, seeds: list[int]) -> dict[str, Any
     ratios = [r["ratio"] for r in runs]
     return {
         "name": row["name"],
-        "targets": int(len(radii)),
+        "targets": len(radii),
         "bks": bks,
         "runs": runs,
         "best_ratio": min(ratios),
@@ -99,7 +101,9 @@ def run_case(row: dict[str, str], base: Path, seeds: list[int]) -> dict[str, Any
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--table", type=Path, default=DEFAULT_TABLE, help="CSV of cases (name, file, radius_factor, bks)")
+    parser.add_argument(
+        "--table", type=Path, default=DEFAULT_TABLE, help="CSV of cases (name, file, radius_factor, bks)"
+    )
     parser.add_argument("--cases", nargs="*", default=None, help="only these case names")
     parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
     parser.add_argument("--name", default="benchmark", help="results file stem")
@@ -108,7 +112,9 @@ def main(argv: list[str] | None = None) -> int:
     with args.table.open() as fh:
         rows = [r for r in csv.DictReader(fh) if not args.cases or r["name"] in args.cases]
     out = {"provenance": provenance(), "table": str(args.table), "seeds": args.seeds, "cases": []}
-    print(f"{'case':22s} {'N':>5s} " + " ".join(f"seed{s:<3d}" for s in args.seeds) + "  spread  cover  time/s")
+    print(
+        f"{'case':22s} {'N':>5s} " + " ".join(f"seed{s:<3d}" for s in args.seeds) + "  spread  cover  time/s"
+    )
     for row in rows:
         case = run_case(row, args.table.parent, args.seeds)
         out["cases"].append(case)
@@ -130,7 +136,10 @@ def main(argv: list[str] | None = None) -> int:
             "max_time": max(r["time"] for c in cases for r in c["runs"]),
         }
         print("mean ratio per seed:", " ".join(f"{m:.4f}" for m in mean))
-        print(f"worst case ratio {out['summary']['worst_case_ratio']:.4f}, worst spread {100 * out['summary']['worst_spread']:.2f}%")
+        print(
+            f"worst case ratio {out['summary']['worst_case_ratio']:.4f}, "
+            f"worst spread {100 * out['summary']['worst_spread']:.2f}%"
+        )
     if not args.no_save:
         RESULTS.mkdir(parents=True, exist_ok=True)
         path = RESULTS / f"{args.name}.json"

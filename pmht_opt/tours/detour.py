@@ -23,9 +23,7 @@ from pmht_opt.tours.geometry import inner
 STEPS = 12
 
 
-def best_points(
-    a: np.ndarray, b: np.ndarray, z: np.ndarray, r: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def best_points(a: np.ndarray, b: np.ndarray, z: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Best points ``(n, 2)`` and costs ``(n,)`` :math:`f(a, b)` for broadcastable ``(n, 2)`` inputs.
 
     ``a``, ``b``, ``z`` of shape ``(n, 2)`` (or broadcastable) and ``r`` of shape ``(n,)``.

@@ -28,7 +28,7 @@ import numpy as np
 from pmht_opt.tours.geometry import Frame, unit_frame
 from pmht_opt.tours.local import relocate_pass, repair, ruin, two_opt_pass
 from pmht_opt.tours.ordering import order_points
-from pmht_opt.tours.polish import place, refine
+from pmht_opt.tours.polish import place, refine, solve_keys, thin
 from pmht_opt.tours.problem import DiscProblem, DiscTours, Progress, TourSettings
 from pmht_opt.tours.tour import Layout, Tour
 from pmht_opt.tours.verify import check_tours
@@ -65,9 +65,25 @@ def descend(tour: Tour, settings: TourSettings, rounds: int = 8) -> Tour:
 
 def initial_tour(layout: Layout, settings: TourSettings) -> Tour:
     """Every disc a key, in PyVRP's order of the centres, turn points at the centres."""
-    routes = order_points(layout.starts, layout.closed, layout.centres, settings.order_iterations, settings.seed)
+    routes = order_points(
+        layout.starts, layout.closed, layout.centres, settings.order_iterations, settings.seed
+    )
     assert routes is not None
     return Tour(layout, [list(map(int, r)) for r in routes], [layout.centres[r].copy() for r in routes])
+
+
+def settle(tour: Tour, objective: str) -> Tour:
+    """The better of the tour and the cone program on *all* its discs in the order it meets them.
+
+    That program's optimum is at most the polyline through the centres in the same order, so the
+    answer never exceeds it; usually the tour itself is better (its order constrains fewer discs).
+    """
+    placed = place(tour)
+    full = Tour(
+        tour.layout, [list(map(int, r)) for r in placed.routes], [placed.points[r] for r in placed.routes]
+    )
+    full = thin(solve_keys(full))
+    return full if full.covered().all() and better(score(full, objective), score(tour, objective)) else tour
 
 
 def _answer(problem: DiscProblem, frame: Frame, tour: Tour, info: dict[str, object]) -> DiscTours:
@@ -84,8 +100,6 @@ def _answer(problem: DiscProblem, frame: Frame, tour: Tour, info: dict[str, obje
     )
     lengths = np.array([float(np.hypot(*np.diff(out.vertices(m), axis=0).T).sum()) for m in range(M)])
     out = DiscTours(out.routes, out.points, lengths, turns, problem, info)
-    # A visit point is the polyline's closest point to the centre; in the user's units, make it the
-    # closest point again (the mapping back rounds), clipped into the disc it covers.
     return out
 
 
@@ -116,6 +130,14 @@ def plan_tours(
     """
     settings = settings or TourSettings()
     t0 = time.perf_counter()
+    M = problem.n_vehicles
+    if problem.n_targets == 0:
+        empty = [np.zeros(0, dtype=np.intp) for _ in range(M)]
+        answer = DiscTours(
+            empty, np.zeros((0, 2)), np.zeros(M), [np.zeros((0, 2)) for _ in range(M)], problem
+        )
+        check_tours(answer)
+        return answer
     frame = unit_frame(problem.starts, problem.centres, problem.radii)
     layout = Layout(
         starts=frame.to_unit(problem.starts),
@@ -153,6 +175,7 @@ def plan_tours(
             settled += 1
         scores.append(best_score[0] * frame.side)
         halt = report()
+    best = settle(best, objective)
     info: dict[str, object] = {"iterations": it, "seed": settings.seed, "history": scores}
     answer = _answer(problem, frame, best, info)
     check_tours(answer)

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: Distances (unit box) closer than this count as equal when choosing where a polyline meets a disc.
+TIE = 1e-12
 #: Grid of the normalised coordinates (a power of two, so the rounding is exact).
 GRID = 2.0**-40
 
@@ -99,14 +101,17 @@ class Passing:
 def passing(centres: np.ndarray, vertices: np.ndarray) -> Passing:
     """Closest approach of the polyline through ``vertices`` ``(K >= 1, 2)`` to every centre.
 
-    Ties between segments go to the earliest one, so the answer depends on the polyline only.
+    Ties between segments (within :data:`TIE`) go to the earliest one: a polyline that runs out and
+    back along itself meets a disc on the way out.
     """
     if vertices.shape[0] == 1:
         off = centres - vertices[0]
-        return Passing(np.hypot(off[:, 0], off[:, 1]), np.zeros(len(centres)), np.repeat(vertices, len(centres), 0))
+        return Passing(
+            np.hypot(off[:, 0], off[:, 1]), np.zeros(len(centres)), np.repeat(vertices, len(centres), 0)
+        )
     a, b = vertices[:-1], vertices[1:]
     dist, t = segment_distances(centres, a, b)
-    seg = np.argmin(dist, axis=1)
+    seg = np.argmax(dist <= dist.min(axis=1, keepdims=True) + TIE, axis=1)
     rows = np.arange(len(centres))
     tt = t[rows, seg]
     point = a[seg] + tt[:, None] * (b[seg] - a[seg])

@@ -57,7 +57,9 @@ def relocate_pass(tour: Tour, neighbours: int = 12) -> int:
     cnt = C.sum(axis=1)
     ids = _ids(tour)
     leg_ids = [(ids[m][i], ids[m][i + 1]) for m in range(M) for i in range(len(ids[m]) - 1)]
-    tail = np.array([not lay.closed[m] and i == len(ids[m]) - 2 for m in range(M) for i in range(len(ids[m]) - 1)])
+    tail = np.array(
+        [not lay.closed[m] and i == len(ids[m]) - 2 for m in range(M) for i in range(len(ids[m]) - 1)]
+    )
     off = np.concatenate([[0], np.cumsum([len(i) - 1 for i in ids])])
     # Every key: its disc, in/out legs, neighbours a, p, b and the leg that replaces it.
     ks, kin, kout, ka, kp, kb2, klast = [], [], [], [], [], [], []
@@ -87,8 +89,8 @@ def relocate_pass(tour: Tour, neighbours: int = 12) -> int:
     valid = ~orphan.any(axis=0)
     self_cov = (cnt[ks_a] - Cin[ks_a, col] - Cout[ks_a, col] > 0) | (Dnew[ks_a, col] <= r[ks_a])
     moves: list[tuple[float, int, int, np.ndarray | None]] = []  # (delta, key column, leg or -1, point)
-    for i in np.flatnonzero(valid & self_cov & (gain > EPS)):
-        moves.append((-float(gain[i]), int(i), -1, None))
+    for d0 in np.flatnonzero(valid & self_cov & (gain > EPS)):
+        moves.append((-float(gain[d0]), int(d0), -1, None))
     # Insertion into other legs: the cheapest few by a lower bound, then exact detours.
     zk, rk = c[ks_a], r[ks_a]
     lb = _norm(A[None] - zk[:, None]) + _norm(zk[:, None] - B[None]) - 2 * rk[:, None] - _norm(A - B)[None]
@@ -98,7 +100,11 @@ def relocate_pass(tour: Tour, neighbours: int = 12) -> int:
     lb[~valid] = np.inf
     lb[lb >= gain[:, None] - EPS] = np.inf
     nb = min(neighbours, lb.shape[1])
-    near = np.argpartition(lb, nb - 1, axis=1)[:, :nb] if nb < lb.shape[1] else np.tile(np.arange(lb.shape[1]), (len(ks_a), 1))
+    near = (
+        np.argpartition(lb, nb - 1, axis=1)[:, :nb]
+        if nb < lb.shape[1]
+        else np.tile(np.arange(lb.shape[1]), (len(ks_a), 1))
+    )
     rows = np.repeat(col, near.shape[1])
     legs = near.ravel()
     ok = np.isfinite(lb[rows, legs])
@@ -111,20 +117,20 @@ def relocate_pass(tour: Tour, neighbours: int = 12) -> int:
         cost[~t] = f - _norm(A[legs[~t]] - B[legs[~t]])
     if t.any():
         pts[t], cost[t] = reach_points(A[legs[t]], zk[rows[t]], rk[rows[t]])
-    for i, leg, q, cst in zip(rows, legs, pts, cost, strict=True):
-        if cst - gain[i] < -EPS:
-            moves.append((float(cst - gain[i]), int(i), int(leg), q))
+    for r0, l0, p0, c0 in zip(rows, legs, pts, cost, strict=True):
+        if c0 - gain[r0] < -EPS:
+            moves.append((float(c0 - gain[r0]), int(r0), int(l0), p0))
     # Back into its own place at its best point.
     vi = np.flatnonzero(valid)
     if vi.size:
-        last = np.array(klast)[vi]
+        ends = np.array(klast)[vi]
         q0, f0 = best_points(a[vi], b2[vi], zk[vi], rk[vi])
         qt, ft = reach_points(a[vi], zk[vi], rk[vi])
-        q0[last], f0[last] = qt[last], ft[last] + _norm(a[vi] - b2[vi])[last]
+        q0[ends], f0[ends] = qt[ends], ft[ends] + _norm(a[vi] - b2[vi])[ends]
         cst0 = f0 - _norm(a[vi] - b2[vi])
-        for i, q, cst in zip(vi, q0, cst0, strict=True):
-            if cst - gain[i] < -EPS:
-                moves.append((float(cst - gain[i]), int(i), -2, q))
+        for i0, q1, c1 in zip(vi, q0, cst0, strict=True):
+            if c1 - gain[i0] < -EPS:
+                moves.append((float(c1 - gain[i0]), int(i0), -2, q1))
     moves.sort(key=lambda mv: (mv[0], mv[1], mv[2]))
     touched: set[int] = set()
     applied = 0
@@ -174,7 +180,10 @@ def two_opt_pass(tour: Tour, tries: int = 8) -> int:
             i, j = np.triu_indices(K, 1)
             # Reversing keys i..j replaces legs (V_i, V_i+1), (V_j+1, V_j+2) by (V_i, V_j+1), (V_i+1, V_j+2).
             delta = (
-                _norm(V[i] - V[j + 1]) + _norm(V[i + 1] - V[j + 2]) - _norm(V[i] - V[i + 1]) - _norm(V[j + 1] - V[j + 2])
+                _norm(V[i] - V[j + 1])
+                + _norm(V[i + 1] - V[j + 2])
+                - _norm(V[i] - V[i + 1])
+                - _norm(V[j + 1] - V[j + 2])
             )
             if not lay.closed[m]:  # reversing the tail of an open route: its end moves
                 end = j == K - 1

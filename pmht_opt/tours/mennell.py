@@ -53,7 +53,9 @@ def read_mennell(path: str | Path, radius_factor: float = 1.0) -> tuple[np.ndarr
         try:
             values = [float(v) for v in fields]
         except ValueError:
-            raise ConfigError(f"{path}, line {number}: expected numbers 'x y z r demand', got {raw!r}.") from None
+            raise ConfigError(
+                f"{path}, line {number}: expected numbers 'x y z r demand', got {raw!r}."
+            ) from None
         if len(values) < 4 or not np.all(np.isfinite(values[:4])):
             raise ConfigError(f"{path}, line {number}: expected 'x y z r demand', got {raw!r}.")
         if values[3] <= 0:

@@ -20,7 +20,7 @@ from pmht_opt.tours.socp import disc_sequence
 from pmht_opt.tours.tour import Tour
 
 #: A vertex is a turn when the detour through it exceeds this (unit box).
-TURN = 1e-9
+TURN = 1e-8
 
 
 def solve_keys(tour: Tour) -> Tour:
@@ -34,22 +34,35 @@ def solve_keys(tour: Tour) -> Tour:
 
 
 def thin(tour: Tour) -> Tour:
-    """The tour without keys whose turn point is no turn (kept if dropping them loses a disc)."""
+    """The tour without keys whose turn point is no turn.
+
+    Dropping them leaves the polyline as it is up to the detour threshold :data:`TURN`; a dropped key
+    whose disc that small change leaves unmet is kept (and the tour returned as it was if some other
+    disc is lost).
+    """
     out = tour.copy()
+    dropped: list[np.ndarray] = []
     for m in range(len(out.keys)):
         V = out.verts(m)
         if len(out.keys[m]) == 0:
+            dropped.append(np.zeros(0, dtype=bool))
             continue
         a, p, b = V[:-2], V[1:-1], V[2:]
-        detour = (
-            np.hypot(*(p - a).T) + np.hypot(*(b - p).T) - np.hypot(*(b - a).T)
-        )
+        detour = np.hypot(*(p - a).T) + np.hypot(*(b - p).T) - np.hypot(*(b - a).T)
         if not out.layout.closed[m]:
             detour[-1] = np.inf  # an open route's end point is where it stops
-        keep = detour > TURN
-        out.keys[m] = [k for k, f in zip(out.keys[m], keep, strict=True) if f]
-        out.pts[m] = out.pts[m][keep]
-    return out if out.covered().all() else tour
+        dropped.append(detour <= TURN)
+    for _ in range(2):
+        cand = tour.copy()
+        for m, drop in enumerate(dropped):
+            cand.keys[m] = [k for k, f in zip(tour.keys[m], drop, strict=True) if not f]
+            cand.pts[m] = tour.pts[m][~drop]
+        lost = np.flatnonzero(~cand.covered())
+        if lost.size == 0:
+            return cand
+        for m, drop in enumerate(dropped):  # keep the dropped keys whose disc was lost
+            drop &= ~np.isin(np.array(tour.keys[m], dtype=np.intp), lost)
+    return tour
 
 
 def refine(tour: Tour, rounds: int = 4) -> Tour:
@@ -71,7 +84,9 @@ def refine(tour: Tour, rounds: int = 4) -> Tour:
             add = miss[route == m]
             if add.size == 0:
                 continue
-            pos = np.concatenate([np.arange(1, len(cur.keys[m]) + 1, dtype=float), table[m].position[route == m]])
+            pos = np.concatenate(
+                [np.arange(1, len(cur.keys[m]) + 1, dtype=float), table[m].position[route == m]]
+            )
             merged = np.concatenate([np.array(cur.keys[m], dtype=np.intp), add])
             near = pull_inside(table[m].point[route == m], lay.centres[add], lay.radii[add])
             pts = np.vstack([cur.pts[m], near])

@@ -54,13 +54,25 @@ class DiscProblem:
         starts = _array("starts", self.starts, (None, 2))
         if starts.shape[0] < 1:
             raise ConfigError("starts: at least one vehicle is needed.")
-        centres = _array("centres", np.reshape(self.centres, (-1, 2)) if np.size(self.centres) == 0 else self.centres, (None, 2))
-        radii = np.broadcast_to(np.asarray(self.radii, dtype=float), (centres.shape[0],)) if np.ndim(self.radii) == 0 else self.radii
+        centres = _array(
+            "centres",
+            np.reshape(self.centres, (-1, 2)) if np.size(self.centres) == 0 else self.centres,
+            (None, 2),
+        )
+        radii = (
+            np.broadcast_to(np.asarray(self.radii, dtype=float), (centres.shape[0],))
+            if np.ndim(self.radii) == 0
+            else self.radii
+        )
         radii = _array("radii", radii, (centres.shape[0],))
         if np.any(radii <= 0):
             raise ConfigError("radii: every radius must be positive.")
         closed = np.asarray(self.closed)
-        if closed.dtype != bool or closed.ndim > 1 or (closed.ndim == 1 and closed.shape[0] != starts.shape[0]):
+        if (
+            closed.dtype != bool
+            or closed.ndim > 1
+            or (closed.ndim == 1 and closed.shape[0] != starts.shape[0])
+        ):
             raise ConfigError(f"closed: expected a bool or {starts.shape[0]} bools, got {self.closed!r}.")
         closed = np.broadcast_to(closed, (starts.shape[0],)).copy()
         closed.setflags(write=False)
@@ -119,7 +131,11 @@ class TourSettings:
     neighbours: int = 12
 
     def __post_init__(self) -> None:
-        if isinstance(self.seed, bool) or not isinstance(self.seed, numbers.Integral) or not 0 <= self.seed <= SEED_MAX:
+        if (
+            isinstance(self.seed, bool)
+            or not isinstance(self.seed, numbers.Integral)
+            or not 0 <= self.seed <= SEED_MAX
+        ):
             raise ConfigError(f"seed: expected an integer in 0..{SEED_MAX}, got {self.seed!r}.")
         if self.objective not in OBJECTIVES:
             raise ConfigError(f"objective: expected one of {OBJECTIVES}, got {self.objective!r}.")
@@ -198,6 +214,6 @@ class DiscTours:
         """Polyline of route ``m``: its start, its turn points, and its start again when closed."""
         s = self.problem.starts[m][None]
         parts = [s, self.turns[m]]
-        if bool(self.problem.closed[m]):
+        if bool(np.asarray(self.problem.closed)[m]):
             parts.append(s)
         return np.vstack(parts)

@@ -102,4 +102,4 @@ class Tour:
 
 def bool_any(mask: np.ndarray) -> np.ndarray:
     """Row-wise any of a 2-D boolean table (``False`` for rows of no column)."""
-    return mask.any(axis=1) if mask.shape[1] else np.zeros(mask.shape[0], dtype=bool)
+    return np.asarray(mask.any(axis=1)) if mask.shape[1] else np.zeros(mask.shape[0], dtype=bool)

@@ -34,7 +34,9 @@ def coverage_gaps(tours: DiscTours, rtol: float = RTOL) -> np.ndarray:
     prob = tours.problem
     if prob.n_targets == 0:
         return np.zeros(0)
-    dist = np.min([_distance_to_polyline(prob.centres, tours.vertices(m)) for m in range(prob.n_vehicles)], axis=0)
+    dist = np.min(
+        [_distance_to_polyline(prob.centres, tours.vertices(m)) for m in range(prob.n_vehicles)], axis=0
+    )
     return dist - prob.radii * (1 + rtol)
 
 
@@ -42,7 +44,9 @@ def check_tours(tours: DiscTours, rtol: float = RTOL) -> None:
     """Raise SolverError unless every target is covered and the routes, points and lengths agree."""
     prob = tours.problem
     N = prob.n_targets
-    listed = np.concatenate([np.asarray(r, dtype=np.intp) for r in tours.routes]) if tours.routes else np.zeros(0)
+    listed = (
+        np.concatenate([np.asarray(r, dtype=np.intp) for r in tours.routes]) if tours.routes else np.zeros(0)
+    )
     if len(tours.routes) != prob.n_vehicles or np.sort(listed).tolist() != list(range(N)):
         raise SolverError("the routes do not list every target exactly once.")
     gaps = coverage_gaps(tours, rtol)
@@ -51,7 +55,9 @@ def check_tours(tours: DiscTours, rtol: float = RTOL) -> None:
         raise SolverError(
             f"{bad.size} target(s) not met within their radius, e.g. target {bad[0]} by {gaps[bad[0]]:.3g}."
         )
-    scale = max(float(np.ptp(np.vstack([prob.starts, prob.centres]))), float(prob.radii.max(initial=0.0)), 1e-300)
+    scale = max(
+        float(np.ptp(np.vstack([prob.starts, prob.centres]))), float(prob.radii.max(initial=0.0)), 1e-300
+    )
     for m, route in enumerate(tours.routes):
         route = np.asarray(route, dtype=np.intp)
         if route.size == 0:
@@ -63,4 +69,6 @@ def check_tours(tours: DiscTours, rtol: float = RTOL) -> None:
             raise SolverError(f"route {m}: a visit point is off its disc or off the route.")
         length = float(np.hypot(*np.diff(verts, axis=0).T).sum())
         if abs(length - tours.lengths[m]) > 1e-9 * max(length, scale):
-            raise SolverError(f"route {m}: reported length {tours.lengths[m]} is not its polyline's {length}.")
+            raise SolverError(
+                f"route {m}: reported length {tours.lengths[m]} is not its polyline's {length}."
+            )
