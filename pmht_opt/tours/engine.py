@@ -37,13 +37,6 @@ from pmht_opt.tours.verify import check_tours
 REL = 1e-12
 
 
-def score(tour: Tour, objective: str) -> tuple[float, float]:
-    """Lexicographic score, lower is better: (total, total) or (longest route, total)."""
-    lengths = tour.lengths()
-    total = float(lengths.sum())
-    return (float(lengths.max()) if objective == "time" else total, total)
-
-
 def better(a: tuple[float, float], b: tuple[float, float]) -> bool:
     """Whether score ``a`` beats ``b`` by more than the relative tolerance."""
     if a[0] < b[0] * (1 - REL) - 1e-15:
@@ -54,9 +47,9 @@ def better(a: tuple[float, float], b: tuple[float, float]) -> bool:
 def descend(tour: Tour, settings: TourSettings, rounds: int = 8) -> Tour:
     """Local search to a local optimum, the cone program after each descent; never worse."""
     for _ in range(rounds):
-        while relocate_pass(tour, settings.neighbours) + two_opt_pass(tour):
+        while relocate_pass(tour, settings.neighbours, settings.objective) + two_opt_pass(tour):
             pass
-        polished = refine(tour)
+        polished = refine(tour, settings.objective)
         if polished is tour:
             return tour
         tour = polished
@@ -83,7 +76,7 @@ def settle(tour: Tour, objective: str) -> Tour:
         tour.layout, [list(map(int, r)) for r in placed.routes], [placed.points[r] for r in placed.routes]
     )
     full = thin(solve_keys(full))
-    return full if full.covered().all() and better(score(full, objective), score(tour, objective)) else tour
+    return full if full.covered().all() and better(full.score(objective), tour.score(objective)) else tour
 
 
 def _answer(problem: DiscProblem, frame: Frame, tour: Tour, info: dict[str, object]) -> DiscTours:
@@ -147,8 +140,8 @@ def plan_tours(
     )
     rng = np.random.default_rng(settings.seed)
     objective = settings.objective
-    best = descend(refine(initial_tour(layout, settings)), settings)
-    best_score = score(best, objective)
+    best = descend(refine(initial_tour(layout, settings), objective), settings)
+    best_score = best.score(objective)
     scores = [best_score[0] * frame.side]
     settled = 0
     it = 0
@@ -166,9 +159,9 @@ def plan_tours(
         cand = best.copy()
         size = int(rng.integers(settings.ruin_min, settings.ruin_max + 1))
         ruin(cand, rng, min(size, n_keys_max))
-        repair(cand, rng)
+        repair(cand, rng, objective)
         cand = descend(cand, settings)
-        cand_score = score(cand, objective)
+        cand_score = cand.score(objective)
         if better(cand_score, best_score):
             best, best_score, settled = cand, cand_score, 0
         else:

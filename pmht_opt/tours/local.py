@@ -44,8 +44,13 @@ def _ids(tour: Tour) -> list[list[int]]:
     return out
 
 
-def relocate_pass(tour: Tour, neighbours: int = 12) -> int:
-    """One pass of relocate and drop moves; returns how many were applied."""
+def relocate_pass(tour: Tour, neighbours: int = 12, objective: str = "distance") -> int:
+    """One pass of relocate and drop moves; returns how many were applied.
+
+    With ``objective="time"`` a move may also lengthen the total when it takes a disc off the longest
+    route and shortens that route more than it lengthens the receiving one (the longest route first,
+    then the total, must improve).
+    """
     lay = tour.layout
     c, r = lay.centres, lay.radii
     M = len(tour.keys)
@@ -98,7 +103,14 @@ def relocate_pass(tour: Tour, neighbours: int = 12) -> int:
     lb[col, kin_a] = np.inf
     lb[col, kout_a] = np.inf
     lb[~valid] = np.inf
-    lb[lb >= gain[:, None] - EPS] = np.inf
+    lengths = tour.lengths()
+    timed = objective == "time" and M > 1
+    crit = int(np.argmax(lengths))
+    kroute = R[kin_a]
+    # Distance: only insertions that can pay for the removal. Time: from the longest route, any leg
+    # of another route may receive the disc.
+    free = (kroute[:, None] == crit) & (R[None, :] != crit) if timed else np.zeros_like(lb, dtype=bool)
+    lb[(lb >= gain[:, None] - EPS) & ~free] = np.inf
     nb = min(neighbours, lb.shape[1])
     near = (
         np.argpartition(lb, nb - 1, axis=1)[:, :nb]
@@ -117,9 +129,16 @@ def relocate_pass(tour: Tour, neighbours: int = 12) -> int:
         cost[~t] = f - _norm(A[legs[~t]] - B[legs[~t]])
     if t.any():
         pts[t], cost[t] = reach_points(A[legs[t]], zk[rows[t]], rk[rows[t]])
+    span = float(lengths.max())
     for r0, l0, p0, c0 in zip(rows, legs, pts, cost, strict=True):
         if c0 - gain[r0] < -EPS:
             moves.append((float(c0 - gain[r0]), int(r0), int(l0), p0))
+        elif timed and kroute[r0] == crit and R[l0] != crit:
+            after = lengths.copy()
+            after[crit] -= gain[r0]
+            after[R[l0]] += c0
+            if after.max() < span * (1 - 1e-12):  # ranked after every distance move
+                moves.append((float(after.max() - span) + 1e3, int(r0), int(l0), p0))
     # Back into its own place at its best point.
     vi = np.flatnonzero(valid)
     if vi.size:
@@ -134,6 +153,7 @@ def relocate_pass(tour: Tour, neighbours: int = 12) -> int:
     moves.sort(key=lambda mv: (mv[0], mv[1], mv[2]))
     touched: set[int] = set()
     applied = 0
+    before = tour.score(objective)
     for _, i, leg, q in moves:
         k = int(ks_a[i])
         if k in touched:
@@ -162,6 +182,12 @@ def relocate_pass(tour: Tour, neighbours: int = 12) -> int:
         if not tour.covered(np.flatnonzero(risk)).all():
             tour.keys, tour.pts = saved.keys, saved.pts
             continue
+        if timed:  # prices were made on the pass's first tour: the longest route may have changed
+            now = tour.score(objective)
+            if not now < before:
+                tour.keys, tour.pts = saved.keys, saved.pts
+                continue
+            before = now
         touched |= involved
         applied += 1
     return applied
@@ -210,11 +236,15 @@ def two_opt_pass(tour: Tour, tries: int = 8) -> int:
     return applied
 
 
-def insert_cheapest(tour: Tour, disc: int) -> None:
-    """Make ``disc`` a key at its cheapest place over all legs of all routes (its best point there)."""
+def insert_cheapest(tour: Tour, disc: int, objective: str = "distance") -> None:
+    """Make ``disc`` a key at its cheapest place over all legs of all routes (its best point there).
+
+    With ``objective="time"`` the place that keeps the longest route shortest wins, then the cheapest.
+    """
     lay = tour.layout
     z, rr = lay.centres[disc], lay.radii[disc]
-    best = (np.inf, 0, 0, np.zeros(2))
+    lengths = tour.lengths() if objective == "time" else np.zeros(len(tour.keys))
+    best = ((np.inf, np.inf), 0, 0, np.zeros(2))
     for m in range(len(tour.keys)):
         V = tour.verts(m)
         n = len(V) - 1
@@ -223,13 +253,19 @@ def insert_cheapest(tour: Tour, disc: int) -> None:
         if not lay.closed[m]:
             q[-1], cost[-1] = reach_points(V[-1], z, np.array(rr))
         i = int(np.argmin(cost))
-        if cost[i] < best[0]:
-            best = (float(cost[i]), m, i, q[i])
+        if objective == "time":
+            after = lengths.copy()
+            after[m] += cost[i]
+            key = (float(after.max()), float(cost[i]))
+        else:
+            key = (float(cost[i]), 0.0)
+        if key < best[0]:
+            best = (key, m, i, q[i])
     _, m, i, q = best
     tour.insert(m, i, disc, q)
 
 
-def repair(tour: Tour, rng: np.random.Generator) -> None:
+def repair(tour: Tour, rng: np.random.Generator, objective: str = "distance") -> None:
     """Insert discs that no leg meets, cheapest first place each, in random order, until all are met."""
     while True:
         miss = np.flatnonzero(~tour.covered())
@@ -238,7 +274,7 @@ def repair(tour: Tour, rng: np.random.Generator) -> None:
         disc = int(rng.choice(miss))
         if tour.key_mask()[disc]:
             raise AssertionError(f"key disc {disc} is not met by its own turn point")
-        insert_cheapest(tour, disc)
+        insert_cheapest(tour, disc, objective)
 
 
 def ruin(tour: Tour, rng: np.random.Generator, size: int) -> None:

@@ -65,8 +65,9 @@ def thin(tour: Tour) -> Tour:
     return tour
 
 
-def refine(tour: Tour, rounds: int = 4) -> Tour:
-    """The cone program's polyline for the tour's keys, made to meet every disc; never longer."""
+def refine(tour: Tour, objective: str = "distance", rounds: int = 4) -> Tour:
+    """The cone program's polyline for the tour's keys, made to meet every disc; never worse (total
+    length, or longest route then total for ``objective="time"``)."""
     lay = tour.layout
     cur = tour
     for _ in range(rounds):
@@ -74,7 +75,7 @@ def refine(tour: Tour, rounds: int = 4) -> Tour:
         miss = np.flatnonzero(~cur.covered())
         if miss.size == 0:
             cur = thin(cur)
-            return cur if cur.lengths().sum() < tour.lengths().sum() else tour
+            return cur if cur.score(objective) < tour.score(objective) else tour
         # Each lost disc becomes a key where the route passing closest to it passes.
         table = [passing(lay.centres[miss], cur.verts(m)) for m in range(len(cur.keys))]
         dist = np.stack([t.distance for t in table])

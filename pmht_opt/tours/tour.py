@@ -55,6 +55,13 @@ class Tour:
             out[m] = np.hypot(*np.diff(v, axis=0).T).sum()
         return out
 
+    def score(self, objective: str) -> tuple[float, float]:
+        """Lexicographic score, lower is better: (total, total), or (longest route, total) for
+        ``objective="time"``."""
+        lengths = self.lengths()
+        total = float(lengths.sum())
+        return (float(lengths.max()) if objective == "time" else total, total)
+
     def legs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All legs: start points ``(L, 2)``, end points ``(L, 2)`` and each leg's route ``(L,)``."""
         A, B, R = [], [], []
