@@ -35,6 +35,10 @@ from pmht_opt.tours.verify import check_tours
 
 #: Relative improvement that counts as better.
 REL = 1e-12
+#: After a change, moves are tried for the discs within this many median legs (plus a diameter) of it.
+FOCUS = 3.0
+#: A turn point that the cone program moved by more than this (unit box) counts as changed.
+MOVED = 1e-7
 
 
 def better(a: tuple[float, float], b: tuple[float, float]) -> bool:
@@ -44,15 +48,48 @@ def better(a: tuple[float, float], b: tuple[float, float]) -> bool:
     return a[0] <= b[0] * (1 + REL) and a[1] < b[1] * (1 - REL) - 1e-15
 
 
-def descend(tour: Tour, settings: TourSettings, rounds: int = 8) -> Tour:
-    """Local search to a local optimum, the cone program after each descent; never worse."""
+def _near(tour: Tour, points: np.ndarray) -> np.ndarray:
+    """Discs whose centre lies within a few typical legs of any of ``points``: where moves may now pay."""
+    lengths = [np.hypot(*np.diff(tour.verts(m), axis=0).T) for m in range(len(tour.keys))]
+    legs = np.concatenate(lengths)
+    legs = legs[legs > 0]
+    reach = FOCUS * (float(np.median(legs)) if legs.size else 0.0) + 2 * float(tour.layout.radii.max())
+    off = tour.layout.centres[:, None, :] - points[None, :, :]
+    return np.asarray((np.hypot(off[..., 0], off[..., 1]) <= reach).any(axis=1))
+
+
+def _moved(old: Tour, new: Tour) -> np.ndarray:
+    """Turn points that differ between two tours (either tour's, ``(k, 2)``)."""
+    before = {k: p for ks, ps in zip(old.keys, old.pts, strict=True) for k, p in zip(ks, ps, strict=True)}
+    after = {k: p for ks, ps in zip(new.keys, new.pts, strict=True) for k, p in zip(ks, ps, strict=True)}
+    out = [p for k, p in after.items() if k not in before or np.hypot(*(p - before[k])) > MOVED]
+    out += [p for k, p in before.items() if k not in after]
+    return np.array(out) if out else np.zeros((0, 2))
+
+
+def descend(tour: Tour, settings: TourSettings, focus: np.ndarray | None = None, rounds: int = 8) -> Tour:
+    """Local search to a local optimum, the cone program after each descent; never worse.
+
+    ``focus`` marks the discs whose moves are tried first (all when None); after each pass only the
+    discs near what the pass changed are tried again ("don't look bits"), and after the cone program
+    those near the turn points it moved.
+    """
     for _ in range(rounds):
-        while relocate_pass(tour, settings.neighbours, settings.objective) + two_opt_pass(tour):
-            pass
+        while True:
+            changed: list[np.ndarray] = []
+            n = relocate_pass(tour, settings.neighbours, settings.objective, focus, changed)
+            n += two_opt_pass(tour, changed=changed)
+            if n == 0:
+                break
+            focus = _near(tour, np.vstack(changed))
         polished = refine(tour, settings.objective)
         if polished is tour:
             return tour
+        moved = _moved(tour, polished)
         tour = polished
+        if moved.size == 0:
+            return tour
+        focus = _near(tour, moved)
     return tour
 
 
@@ -158,9 +195,9 @@ def plan_tours(
         it += 1
         cand = best.copy()
         size = int(rng.integers(settings.ruin_min, settings.ruin_max + 1))
-        ruin(cand, rng, min(size, n_keys_max))
-        repair(cand, rng, objective)
-        cand = descend(cand, settings)
+        removed = ruin(cand, rng, min(size, n_keys_max))
+        inserted = repair(cand, rng, objective)
+        cand = descend(cand, settings, _near(cand, np.vstack([removed, inserted])))
         cand_score = cand.score(objective)
         if better(cand_score, best_score):
             best, best_score, settled = cand, cand_score, 0

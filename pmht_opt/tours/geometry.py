@@ -58,16 +58,15 @@ def segment_distances(z: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.n
     """Distances ``(N, S)`` of points ``z`` ``(N, 2)`` to segments ``[a_s, b_s]`` and the parameters ``t``.
 
     ``t`` in ``[0, 1]`` places the closest point at ``a + t (b - a)``; a degenerate segment (``a = b``)
-    has ``t = 0``.
+    has ``t = 0``. Written per coordinate (no ``(N, S, 2)`` temporaries): the searches call it often.
     """
-    d = b - a  # (S, 2)
-    dd = np.einsum("sk,sk->s", d, d)
-    rel = z[:, None, :] - a[None, :, :]  # (N, S, 2)
-    num = np.einsum("nsk,sk->ns", rel, d)
-    t = np.where(dd > 0, num / np.where(dd > 0, dd, 1.0), 0.0)
-    t = np.clip(t, 0.0, 1.0)
-    off = rel - t[:, :, None] * d[None, :, :]
-    return np.hypot(off[:, :, 0], off[:, :, 1]), t
+    dx, dy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
+    dd = dx * dx + dy * dy
+    inv = np.divide(1.0, dd, out=np.zeros_like(dd), where=dd > 0)
+    rx = z[:, 0:1] - a[None, :, 0]
+    ry = z[:, 1:2] - a[None, :, 1]
+    t = np.minimum(np.maximum((rx * dx + ry * dy) * inv, 0.0), 1.0)
+    return np.hypot(rx - t * dx, ry - t * dy), t
 
 
 def polyline_length(vertices: np.ndarray) -> float:

@@ -26,8 +26,10 @@ from pmht_opt.tours.detour import best_points, reach_points
 from pmht_opt.tours.geometry import segment_distances
 from pmht_opt.tours.tour import Tour
 
-#: Smallest saving (unit box) that counts as an improvement.
-EPS = 1e-10
+#: Smallest saving (unit box) that a move must make. Smaller gains are left to the cone program, which
+#: moves all turn points at once: chasing them move by move converges slowly (each turn point's best
+#: place shifts with its neighbours') and costs passes for nothing.
+EPS = 1e-7
 
 
 def _norm(v: np.ndarray) -> np.ndarray:
@@ -44,8 +46,17 @@ def _ids(tour: Tour) -> list[list[int]]:
     return out
 
 
-def relocate_pass(tour: Tour, neighbours: int = 12, objective: str = "distance") -> int:
+def relocate_pass(
+    tour: Tour,
+    neighbours: int = 12,
+    objective: str = "distance",
+    focus: np.ndarray | None = None,
+    changed: list[np.ndarray] | None = None,
+) -> int:
     """One pass of relocate and drop moves; returns how many were applied.
+
+    Only key discs with ``focus`` set are moved (all when None); the vertices that applied moves
+    changed are appended to ``changed``, so the next pass can focus on the discs around them.
 
     With ``objective="time"`` a move may also lengthen the total when it takes a disc off the longest
     route and shortens that route more than it lengthens the receiving one (the longest route first,
@@ -72,6 +83,8 @@ def relocate_pass(tour: Tour, neighbours: int = 12, objective: str = "distance")
         v = tour.verts(m)
         K = len(tour.keys[m])
         for j in range(K):
+            if focus is not None and not focus[tour.keys[m][j]]:
+                continue
             last = not lay.closed[m] and j == K - 1
             ks.append(tour.keys[m][j])
             kin.append(off[m] + j)
@@ -80,8 +93,10 @@ def relocate_pass(tour: Tour, neighbours: int = 12, objective: str = "distance")
             kp.append(v[j + 1])
             kb2.append(v[j] if last else v[j + 2])
             klast.append(last)
+    if not ks:
+        return 0
     ks_a = np.array(ks)
-    kin_a, kout_a = np.array(kin), np.array(kout)
+    kin_a, kout_a = np.array(kin, dtype=np.intp), np.array(kout, dtype=np.intp)
     a, p, b2 = np.array(ka), np.array(kp), np.array(kb2)
     b = B[kout_a]
     gain = _norm(a - p) + _norm(p - b) - _norm(a - b2)
@@ -121,35 +136,34 @@ def relocate_pass(tour: Tour, neighbours: int = 12, objective: str = "distance")
     legs = near.ravel()
     ok = np.isfinite(lb[rows, legs])
     rows, legs = rows[ok], legs[ok]
+    # Back into its own place too (leg code -2, between a and b2), priced in the same batch.
+    vi = np.flatnonzero(valid)
+    rows = np.concatenate([rows, vi])
+    legs = np.concatenate([legs, np.full(len(vi), -2)])
+    own = legs == -2
+    la = np.where(own[:, None], a[rows], A[np.maximum(legs, 0)])
+    lbb = np.where(own[:, None], b2[rows], B[np.maximum(legs, 0)])
+    t = np.where(own, np.array(klast, dtype=bool)[rows], tail[np.maximum(legs, 0)])
     pts = np.zeros((len(rows), 2))
     cost = np.zeros(len(rows))
-    t = tail[legs]
     if (~t).any():
-        pts[~t], f = best_points(A[legs[~t]], B[legs[~t]], zk[rows[~t]], rk[rows[~t]])
-        cost[~t] = f - _norm(A[legs[~t]] - B[legs[~t]])
+        pts[~t], f = best_points(la[~t], lbb[~t], zk[rows[~t]], rk[rows[~t]])
+        cost[~t] = f - _norm(la[~t] - lbb[~t])
     if t.any():
-        pts[t], cost[t] = reach_points(A[legs[t]], zk[rows[t]], rk[rows[t]])
-    span = float(lengths.max())
-    for r0, l0, p0, c0 in zip(rows, legs, pts, cost, strict=True):
-        if c0 - gain[r0] < -EPS:
-            moves.append((float(c0 - gain[r0]), int(r0), int(l0), p0))
-        elif timed and kroute[r0] == crit and R[l0] != crit:
-            after = lengths.copy()
-            after[crit] -= gain[r0]
-            after[R[l0]] += c0
-            if after.max() < span * (1 - 1e-12):  # ranked after every distance move
-                moves.append((float(after.max() - span) + 1e3, int(r0), int(l0), p0))
-    # Back into its own place at its best point.
-    vi = np.flatnonzero(valid)
-    if vi.size:
-        ends = np.array(klast)[vi]
-        q0, f0 = best_points(a[vi], b2[vi], zk[vi], rk[vi])
-        qt, ft = reach_points(a[vi], zk[vi], rk[vi])
-        q0[ends], f0[ends] = qt[ends], ft[ends] + _norm(a[vi] - b2[vi])[ends]
-        cst0 = f0 - _norm(a[vi] - b2[vi])
-        for i0, q1, c1 in zip(vi, q0, cst0, strict=True):
-            if c1 - gain[i0] < -EPS:
-                moves.append((float(c1 - gain[i0]), int(i0), -2, q1))
+        pts[t], cost[t] = reach_points(la[t], zk[rows[t]], rk[rows[t]])
+    delta = cost - gain[rows]
+    for o in np.flatnonzero(delta < -EPS):
+        moves.append((float(delta[o]), int(rows[o]), int(legs[o]), pts[o]))
+    if timed:
+        span = float(lengths.max())
+        for o in np.flatnonzero((delta >= -EPS) & ~own):
+            r0, l0 = int(rows[o]), int(legs[o])
+            if kroute[r0] == crit and R[l0] != crit:
+                after = lengths.copy()
+                after[crit] -= gain[r0]
+                after[R[l0]] += cost[o]
+                if after.max() < span * (1 - 1e-12):  # ranked after every distance move
+                    moves.append((float(after.max() - span) + 1e3, r0, l0, pts[o]))
     moves.sort(key=lambda mv: (mv[0], mv[1], mv[2]))
     touched: set[int] = set()
     applied = 0
@@ -159,41 +173,49 @@ def relocate_pass(tour: Tour, neighbours: int = 12, objective: str = "distance")
         if k in touched:
             continue
         m, j = tour.locate(k)
-        prev_id, next_id = _ids(tour)[m][j], _ids(tour)[m][j + 2]
+        K = len(tour.keys[m])
+        prev_id = tour.keys[m][j - 1] if j > 0 else -(m + 1)
+        next_id = tour.keys[m][j + 1] if j + 1 < K else (-(m + 1) if lay.closed[m] else -(M + m + 1))
         involved = {k, prev_id, next_id}
         if leg >= 0:
             involved |= set(leg_ids[leg])
         if involved & touched:
             continue
-        saved = tour.copy()
+        m2 = int(R[leg]) if leg >= 0 else m
+        saved = {r_: (list(tour.keys[r_]), tour.pts[r_]) for r_ in {m, m2}}
         tour.remove(m, j)
         risk = C[:, kin_a[i]] | C[:, kout_a[i]]
         if leg >= 0 or leg == -2:
             if leg >= 0:
                 cid = leg_ids[leg][0]
-                m2 = int(R[leg])
                 risk = risk | C[:, leg]
             else:
-                cid, m2 = prev_id, m
+                cid = prev_id
             pos = 0 if cid < 0 else tour.keys[m2].index(cid) + 1
             assert q is not None
             tour.insert(m2, pos, k, q)
         risk[k] = True
         if not tour.covered(np.flatnonzero(risk)).all():
-            tour.keys, tour.pts = saved.keys, saved.pts
+            for r_, (kk, pp) in saved.items():
+                tour.keys[r_], tour.pts[r_] = kk, pp
             continue
         if timed:  # prices were made on the pass's first tour: the longest route may have changed
             now = tour.score(objective)
             if not now < before:
-                tour.keys, tour.pts = saved.keys, saved.pts
+                for r_, (kk, pp) in saved.items():
+                    tour.keys[r_], tour.pts[r_] = kk, pp
                 continue
             before = now
         touched |= involved
         applied += 1
+        if changed is not None:
+            changed.append(np.array([a[i], p[i], b2[i]]))
+            if leg >= 0:
+                changed.append(np.array([A[leg], B[leg], q]))
     return applied
 
 
-def two_opt_pass(tour: Tour, tries: int = 8) -> int:
+def two_opt_pass(tour: Tour, tries: int = 8, changed: list[np.ndarray] | None = None) -> int:
     """2-opt on each route until no improving reversal keeps every disc met; returns how many."""
     lay = tour.layout
     applied = 0
@@ -229,6 +251,8 @@ def two_opt_pass(tour: Tour, tries: int = 8) -> int:
                 if tour.covered(risk).all():
                     applied += 1
                     done = True
+                    if changed is not None:
+                        changed.append(np.vstack([a0, b0]))
                     break
                 tour.keys[m], tour.pts[m] = saved_k, saved_p
             if not done:
@@ -236,15 +260,16 @@ def two_opt_pass(tour: Tour, tries: int = 8) -> int:
     return applied
 
 
-def insert_cheapest(tour: Tour, disc: int, objective: str = "distance") -> None:
+def insert_cheapest(tour: Tour, disc: int, objective: str = "distance") -> np.ndarray:
     """Make ``disc`` a key at its cheapest place over all legs of all routes (its best point there).
 
     With ``objective="time"`` the place that keeps the longest route shortest wins, then the cheapest.
+    Returns the replaced leg's ends and the new turn point, ``(3, 2)``: start, point, end.
     """
     lay = tour.layout
     z, rr = lay.centres[disc], lay.radii[disc]
     lengths = tour.lengths() if objective == "time" else np.zeros(len(tour.keys))
-    best = ((np.inf, np.inf), 0, 0, np.zeros(2))
+    best: tuple[tuple[float, float], int, int, np.ndarray, np.ndarray] | None = None
     for m in range(len(tour.keys)):
         V = tour.verts(m)
         n = len(V) - 1
@@ -259,32 +284,52 @@ def insert_cheapest(tour: Tour, disc: int, objective: str = "distance") -> None:
             key = (float(after.max()), float(cost[i]))
         else:
             key = (float(cost[i]), 0.0)
-        if key < best[0]:
-            best = (key, m, i, q[i])
-    _, m, i, q = best
+        if best is None or key < best[0]:
+            best = (key, m, i, q[i], V[i : i + 2])
+    assert best is not None
+    _, m, i, q, ends = best
     tour.insert(m, i, disc, q)
+    return np.array([ends[0], q, ends[1]])
 
 
-def repair(tour: Tour, rng: np.random.Generator, objective: str = "distance") -> None:
-    """Insert discs that no leg meets, cheapest first place each, in random order, until all are met."""
-    while True:
-        miss = np.flatnonzero(~tour.covered())
-        if miss.size == 0:
-            return
+def repair(tour: Tour, rng: np.random.Generator, objective: str = "distance") -> np.ndarray:
+    """Insert discs that no leg meets, cheapest first place each, in random order, until all are met.
+
+    Coverage is checked in full once; after that only where an insertion changed the polyline: the
+    replaced leg may have been all that met some disc, and the two new legs may meet missing ones.
+    Returns the changed vertices ``(3 k, 2)`` (see :func:`insert_cheapest`).
+    """
+    lay = tour.layout
+    c, r = lay.centres, lay.radii
+    miss = np.flatnonzero(~tour.covered())
+    changed: list[np.ndarray] = []
+    while miss.size:
         disc = int(rng.choice(miss))
         if tour.key_mask()[disc]:
             raise AssertionError(f"key disc {disc} is not met by its own turn point")
-        insert_cheapest(tour, disc, objective)
+        ends = insert_cheapest(tour, disc, objective)
+        changed.append(ends)
+        old, _ = segment_distances(c, ends[[0]], ends[[2]])
+        risk = np.flatnonzero(old[:, 0] <= r)
+        lost = risk[~tour.covered(risk)]
+        new, _ = segment_distances(c[miss], ends[[0, 1]], ends[[1, 2]])
+        still = miss[(new > r[miss, None]).all(axis=1) & (miss != disc)]
+        miss = np.union1d(still, lost)
+    return np.vstack(changed) if changed else np.zeros((0, 2))
 
 
-def ruin(tour: Tour, rng: np.random.Generator, size: int) -> None:
-    """Remove a random key disc and the ``size - 1`` key discs whose centres are nearest to it."""
+def ruin(tour: Tour, rng: np.random.Generator, size: int) -> np.ndarray:
+    """Remove a random key disc and the ``size - 1`` key discs whose centres are nearest to it;
+    returns the removed turn points."""
     keys = np.array([k for ks in tour.keys for k in ks], dtype=np.intp)
     if keys.size == 0:
-        return
+        return np.zeros((0, 2))
     seed = int(rng.choice(keys))
     c = tour.layout.centres
     order = np.argsort(_norm(c[keys] - c[seed]), kind="stable")
+    removed = []
     for k in keys[order[:size]]:
         m, j = tour.locate(int(k))
+        removed.append(tour.pts[m][j])
         tour.remove(m, j)
+    return np.array(removed)
