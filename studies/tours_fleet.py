@@ -43,7 +43,7 @@ def scenario(name: str, seed: int, radius: float, closed: bool) -> DiscProblem:
         starts = rng.uniform(0, 10, (4, 2))
     else:
         raise ValueError(f"unknown scenario {name!r}")
-    return DiscProblem(starts, centres, radius, closed)
+    return DiscProblem(starts, centres, np.full(len(centres), radius), closed)
 
 
 def main(argv: list[str] | None = None) -> int:
