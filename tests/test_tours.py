@@ -171,3 +171,24 @@ def test_random_instances(seed: int, n: int, m: int, closed: bool) -> None:
         through = np.vstack([s, c, s] if closed else [s, c])
         upper = float(np.hypot(*np.diff(through, axis=0).T).sum())
         assert lower * (1 - 1e-6) - 1e-9 <= tours.lengths[k] <= upper * (1 + 1e-9) + 1e-12
+
+
+def test_time_objective_shortens_the_longest_route() -> None:
+    rng = np.random.default_rng(8)
+    problem = DiscProblem([[0.0, 0.0], [0.0, 1.0], [0.0, 2.0]], rng.uniform(0, 10, (30, 2)), 0.3, False)
+    dist = plan_tours(problem, FAST)
+    time_ = plan_tours(
+        problem, TourSettings(objective="time", order_iterations=200, iterations=20, patience=10)
+    )
+    assert time_.makespan <= dist.makespan * (1 + 1e-9)
+    assert time_.total >= dist.total * (1 - 1e-9) or time_.makespan < dist.makespan
+    check_tours(time_)
+
+
+def test_every_vehicle_starts_from_its_own_start() -> None:
+    problem = DiscProblem([[0.0, 0.0], [10.0, 10.0]], [[1.0, 0.0], [9.0, 10.0]], 0.2, True)
+    tours = plan_tours(problem, FAST)
+    assert tours.routes[0].tolist() == [0] and tours.routes[1].tolist() == [1]
+    assert tours.total == pytest.approx(2 * 0.8 * 2, rel=1e-7)
+    for m in range(2):
+        assert np.array_equal(tours.vertices(m)[0], problem.starts[m])

@@ -27,7 +27,7 @@ import numpy as np
 
 from pmht_opt.tours.geometry import Frame, unit_frame
 from pmht_opt.tours.local import relocate_pass, repair, ruin, two_opt_pass
-from pmht_opt.tours.ordering import order_points
+from pmht_opt.tours.ordering import order_points, order_points_minmax
 from pmht_opt.tours.polish import place, refine, solve_keys, thin
 from pmht_opt.tours.problem import DiscProblem, DiscTours, Progress, TourSettings
 from pmht_opt.tours.tour import Layout, Tour
@@ -94,10 +94,17 @@ def descend(tour: Tour, settings: TourSettings, focus: np.ndarray | None = None,
 
 
 def initial_tour(layout: Layout, settings: TourSettings) -> Tour:
-    """Every disc a key, in PyVRP's order of the centres, turn points at the centres."""
-    routes = order_points(
-        layout.starts, layout.closed, layout.centres, settings.order_iterations, settings.seed
-    )
+    """Every disc a key, in PyVRP's order of the centres, turn points at the centres.
+
+    For ``objective="time"`` with several vehicles the order comes from a bisection on PyVRP's route
+    length limit (:func:`~pmht_opt.tours.ordering.order_points_minmax`).
+    """
+    args = (layout.starts, layout.closed, layout.centres, settings.order_iterations, settings.seed)
+    routes: list[list[int]] | None
+    if settings.objective == "time" and len(layout.starts) > 1 and settings.bisection > 0:
+        routes = order_points_minmax(*args, steps=settings.bisection)
+    else:
+        routes = order_points(*args)
     assert routes is not None
     return Tour(layout, [list(map(int, r)) for r in routes], [layout.centres[r].copy() for r in routes])
 
@@ -177,8 +184,14 @@ def plan_tours(
     )
     rng = np.random.default_rng(settings.seed)
     objective = settings.objective
-    best = descend(refine(initial_tour(layout, settings), objective), settings)
+    first = initial_tour(layout, settings)
+    stages = {"centres": first.score(objective)[0] * frame.side}
+    polished = refine(first, objective)
+    stages["cone"] = polished.score(objective)[0] * frame.side
+    best = descend(polished, settings)  # (works in place)
     best_score = best.score(objective)
+    stages["descent"] = best_score[0] * frame.side
+    current, current_score = best, best_score
     scores = [best_score[0] * frame.side]
     settled = 0
     it = 0
@@ -193,7 +206,7 @@ def plan_tours(
     n_keys_max = max(1, problem.n_targets)
     while not halt and it < settings.iterations and settled < settings.patience and problem.n_targets:
         it += 1
-        cand = best.copy()
+        cand = current.copy()
         size = int(rng.integers(settings.ruin_min, settings.ruin_max + 1))
         removed = ruin(cand, rng, min(size, n_keys_max))
         inserted = repair(cand, rng, objective)
@@ -201,12 +214,19 @@ def plan_tours(
         cand_score = cand.score(objective)
         if better(cand_score, best_score):
             best, best_score, settled = cand, cand_score, 0
+            current, current_score = cand, cand_score
         else:
             settled += 1
+            threshold = settings.accept * (1 - it / max(settings.iterations, 1))
+            if cand_score[0] <= best_score[0] * (1 + threshold):  # record-to-record travel
+                current, current_score = cand, cand_score
+            elif current_score[0] > best_score[0] * (1 + threshold):
+                current, current_score = best, best_score
         scores.append(best_score[0] * frame.side)
         halt = report()
+    stages["search"] = best_score[0] * frame.side
     best = settle(best, objective)
-    info: dict[str, object] = {"iterations": it, "seed": settings.seed, "history": scores}
+    info: dict[str, object] = {"iterations": it, "seed": settings.seed, "history": scores, "stages": stages}
     answer = _answer(problem, frame, best, info)
     check_tours(answer)
     return answer

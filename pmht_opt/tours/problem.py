@@ -117,6 +117,13 @@ class TourSettings:
         Stop after this many iterations without a better tour.
     ruin_min, ruin_max
         A ruin removes between these many key discs (a random one and its nearest).
+    bisection
+        With ``objective="time"``: PyVRP solves of the bisection on the longest route that gives the
+        first order (0: start from the shortest-total order).
+    accept
+        Threshold acceptance: a recreated tour becomes the next one to ruin when it is within this
+        fraction of the best score; the fraction falls linearly to 0 at ``iterations``. The best tour
+        is kept apart and returned.
     neighbours
         Legs at which a relocate move tries each disc (the cheapest by a lower bound).
     """
@@ -127,7 +134,9 @@ class TourSettings:
     iterations: int = 150
     patience: int = 60
     ruin_min: int = 2
-    ruin_max: int = 8
+    ruin_max: int = 20
+    accept: float = 0.01
+    bisection: int = 6
     neighbours: int = 12
 
     def __post_init__(self) -> None:
@@ -147,6 +156,9 @@ class TourSettings:
         if self.ruin_max < self.ruin_min:
             raise ConfigError(f"ruin_max: must be >= ruin_min ({self.ruin_min}), got {self.ruin_max}.")
         _count("neighbours", self.neighbours, 1)
+        _count("bisection", self.bisection, 0)
+        if not (isinstance(self.accept, int | float) and 0.0 <= self.accept < 1.0):
+            raise ConfigError(f"accept: expected a number in [0, 1), got {self.accept!r}.")
 
 
 @dataclass(frozen=True)
