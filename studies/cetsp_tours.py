@@ -102,6 +102,23 @@ def run_case(row: dict[str, str], base: Path, seeds: list[int]) -> dict[str, Any
     }
 
 
+def invariance(row: dict[str, str], base: Path, factors: tuple[float, ...] = (0.01, 100.0)) -> dict[str, Any]:
+    """Seed 0 twice at scale 1 and once at each scale factor: same routes, lengths scaled?"""
+    depot, centres, radii = read_mennell(base / row["file"], float(row["radius_factor"]))
+    runs = [plan_tours(DiscProblem(depot[None], centres, radii, closed=True)) for _ in range(2)]
+    same_bits = bool(
+        np.array_equal(runs[0].points, runs[1].points) and np.array_equal(runs[0].lengths, runs[1].lengths)
+    )
+    out: dict[str, Any] = {"name": row["name"], "same_bits": same_bits, "scales": {}}
+    for f in factors:
+        t = plan_tours(DiscProblem(depot[None] * f, centres * f, radii * f, closed=True))
+        out["scales"][str(f)] = {
+            "same_routes": all(np.array_equal(a, b) for a, b in zip(t.routes, runs[0].routes, strict=True)),
+            "length_ratio_error": abs(t.total / (f * runs[0].total) - 1),
+        }
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -111,9 +128,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
     parser.add_argument("--name", default="benchmark", help="results file stem")
     parser.add_argument("--no-save", action="store_true", help="print only")
+    parser.add_argument(
+        "--invariance", action="store_true", help="instead: same bits twice, and scales 0.01 and 100, seed 0"
+    )
     args = parser.parse_args(argv)
     with args.table.open() as fh:
         rows = [r for r in csv.DictReader(fh) if not args.cases or r["name"] in args.cases]
+    if args.invariance:
+        checks = [invariance(row, args.table.parent) for row in rows]
+        for c in checks:
+            print(c["name"], "same bits:", c["same_bits"], c["scales"], flush=True)
+        if not args.no_save:
+            RESULTS.mkdir(parents=True, exist_ok=True)
+            record = {"provenance": provenance(), "checks": checks}
+            (RESULTS / f"{args.name}_invariance.json").write_text(json.dumps(record, indent=1) + "\n")
+        return 0
     out = {"provenance": provenance(), "table": str(args.table), "seeds": args.seeds, "cases": []}
     print(
         f"{'case':22s} {'N':>5s} " + " ".join(f"seed{s:<3d}" for s in args.seeds) + "  spread  cover  cpu/s"
@@ -140,6 +169,12 @@ def main(argv: list[str] | None = None) -> int:
             "max_cpu": max(r["cpu"] for c in cases for r in c["runs"]),
         }
         print("mean ratio per seed:", " ".join(f"{m:.4f}" for m in mean))
+        stages = {
+            k: float(np.mean([r["stages"][k] for c in cases for r in c["runs"]]))
+            for k in cases[0]["runs"][0]["stages"]
+        }
+        out["summary"]["mean_ratio_per_stage"] = stages
+        print("mean ratio after each stage:", ", ".join(f"{k} {v:.4f}" for k, v in stages.items()))
         print(
             f"worst case ratio {out['summary']['worst_case_ratio']:.4f}, "
             f"worst spread {100 * out['summary']['worst_spread']:.2f}%"

@@ -5,15 +5,24 @@ Stages, each measured in the package's study (``studies/cetsp_tours.py``):
 1. **Normalise** the problem into the unit box (:mod:`pmht_opt.tours.geometry`): the same tours
    whatever the units.
 2. **Order** the disc centres with PyVRP (:mod:`pmht_opt.tours.ordering`): a multiple TSP from each
-   vehicle's start, closed or open.
+   vehicle's start, closed or open (for the makespan, a bisection on PyVRP's route length limit).
 3. **Polish** that order with the cone program (:mod:`pmht_opt.tours.polish`): the exact turn points;
    discs the polyline crosses anyway stop being keys.
 4. **Descend** (:mod:`pmht_opt.tours.local`): relocate, drop and 2-opt moves priced with the other turn
    points fixed, then the cone program again, until neither improves.
 5. **Ruin and recreate**: remove a few neighbouring key discs, put back every disc that is no longer
-   met at its cheapest place, descend; keep the result when it is better. Stops after a number of
+   met at its cheapest place, descend. The best tour is kept apart; the next ruin starts from the
+   last tour within a threshold of the best (record-to-record travel, the threshold falling to zero),
+   which lets the search leave a local optimum that small ruins cannot. Stops after a number of
    iterations, or of iterations without a better tour: never on wall time, so the seed fixes the
    answer.
+6. **Settle**: the cone program on every disc in the order the tour meets them, kept if shorter; the
+   answer is then never longer than the polyline through the centres in that order.
+
+A generalised TSP over discretised discs (PyVRP with one group of boundary points per disc, the
+Carrabs et al. scheme) was tried first and dropped: PyVRP's search on such groups stalled about 10%
+above the best known tour on kroD100 (radius factor 0.1) where the centres' TSP plus the cone program
+is 3% above it, and the copies needed for overlapping discs made it large.
 
 The answer is checked by :func:`pmht_opt.tours.verify.check_tours` before it is returned.
 """

@@ -16,6 +16,9 @@ A move must keep every disc met. The discs that only the removed legs met are ch
 polyline before a move is kept, so the search never leaves the feasible set. Moves of one pass are
 priced on the pass's starting tour, sorted, and applied best first while they touch no vertex that an
 earlier move of the pass changed (their prices are then still exact).
+
+The ruin-and-recreate perturbation lives here too: :func:`ruin` removes a cluster of key discs and
+:func:`repair` puts back, each at its cheapest place, every disc that the polyline no longer meets.
 """
 
 from __future__ import annotations
