@@ -1,0 +1,241 @@
+r"""Plan straight-line routes that meet every disc: an order from PyVRP, then ruin and recreate.
+
+Stages, each measured in the package's study (``studies/cetsp_tours.py``):
+
+1. **Normalise** the problem into the unit box (:mod:`pmht_opt.tours.geometry`): the same tours
+   whatever the units.
+2. **Order** the disc centres with PyVRP (:mod:`pmht_opt.tours.ordering`): a multiple TSP from each
+   vehicle's start, closed or open (for the makespan, a bisection on PyVRP's route length limit).
+3. **Polish** that order with the cone program (:mod:`pmht_opt.tours.polish`): the exact turn points;
+   discs the polyline crosses anyway stop being keys.
+4. **Descend** (:mod:`pmht_opt.tours.local`): relocate, drop and 2-opt moves priced with the other turn
+   points fixed, then the cone program again, until neither improves.
+5. **Ruin and recreate**: remove a few neighbouring key discs, put back every disc that is no longer
+   met at its cheapest place, descend. The best tour is kept apart; the next ruin starts from the
+   last tour within a threshold of the best (record-to-record travel, the threshold falling to zero),
+   which lets the search leave a local optimum that small ruins cannot. Stops after a number of
+   iterations, or of iterations without a better tour: never on wall time, so the seed fixes the
+   answer.
+6. **Settle**: the cone program on every disc in the order the tour meets them, kept if shorter; the
+   answer is then never longer than the polyline through the centres in that order.
+
+A generalised TSP over discretised discs (PyVRP with one group of boundary points per disc, the
+Carrabs et al. scheme) was tried first and dropped: PyVRP's search on such groups stalled about 10%
+above the best known tour on kroD100 (radius factor 0.1) where the centres' TSP plus the cone program
+is 3% above it, and the copies needed for overlapping discs made it large.
+
+The answer is checked by :func:`pmht_opt.tours.verify.check_tours` before it is returned.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from pmht_opt.tours.geometry import Frame, unit_frame
+from pmht_opt.tours.local import relocate_pass, repair, ruin, two_opt_pass
+from pmht_opt.tours.ordering import order_points, order_points_minmax
+from pmht_opt.tours.polish import place, refine, solve_keys, thin
+from pmht_opt.tours.problem import DiscProblem, DiscTours, Progress, TourSettings
+from pmht_opt.tours.tour import Layout, Tour
+from pmht_opt.tours.verify import check_tours
+
+#: Relative improvement that counts as better.
+REL = 1e-12
+#: After a change, moves are tried for the discs within this many median legs (plus a diameter) of it.
+FOCUS = 3.0
+#: A turn point that the cone program moved by more than this (unit box) counts as changed.
+MOVED = 1e-7
+
+
+def better(a: tuple[float, float], b: tuple[float, float]) -> bool:
+    """Whether score ``a`` beats ``b`` by more than the relative tolerance."""
+    if a[0] < b[0] * (1 - REL) - 1e-15:
+        return True
+    return a[0] <= b[0] * (1 + REL) and a[1] < b[1] * (1 - REL) - 1e-15
+
+
+def _near(tour: Tour, points: np.ndarray) -> np.ndarray:
+    """Discs whose centre lies within a few typical legs of any of ``points``: where moves may now pay."""
+    lengths = [np.hypot(*np.diff(tour.verts(m), axis=0).T) for m in range(len(tour.keys))]
+    legs = np.concatenate(lengths)
+    legs = legs[legs > 0]
+    reach = FOCUS * (float(np.median(legs)) if legs.size else 0.0) + 2 * float(tour.layout.radii.max())
+    off = tour.layout.centres[:, None, :] - points[None, :, :]
+    return np.asarray((np.hypot(off[..., 0], off[..., 1]) <= reach).any(axis=1))
+
+
+def _moved(old: Tour, new: Tour) -> np.ndarray:
+    """Turn points that differ between two tours (either tour's, ``(k, 2)``)."""
+    before = {k: p for ks, ps in zip(old.keys, old.pts, strict=True) for k, p in zip(ks, ps, strict=True)}
+    after = {k: p for ks, ps in zip(new.keys, new.pts, strict=True) for k, p in zip(ks, ps, strict=True)}
+    out = [p for k, p in after.items() if k not in before or np.hypot(*(p - before[k])) > MOVED]
+    out += [p for k, p in before.items() if k not in after]
+    return np.array(out) if out else np.zeros((0, 2))
+
+
+def descend(tour: Tour, settings: TourSettings, focus: np.ndarray | None = None, rounds: int = 8) -> Tour:
+    """Local search to a local optimum, the cone program after each descent; never worse.
+
+    ``focus`` marks the discs whose moves are tried first (all when None); after each pass only the
+    discs near what the pass changed are tried again ("don't look bits"), and after the cone program
+    those near the turn points it moved.
+    """
+    for _ in range(rounds):
+        while True:
+            changed: list[np.ndarray] = []
+            n = relocate_pass(tour, settings.neighbours, settings.objective, focus, changed)
+            n += two_opt_pass(tour, changed=changed)
+            if n == 0:
+                break
+            focus = _near(tour, np.vstack(changed))
+        polished = refine(tour, settings.objective)
+        if polished is tour:
+            return tour
+        moved = _moved(tour, polished)
+        tour = polished
+        if moved.size == 0:
+            return tour
+        focus = _near(tour, moved)
+    return tour
+
+
+def initial_tour(layout: Layout, settings: TourSettings) -> Tour:
+    """Every disc a key, in PyVRP's order of the centres, turn points at the centres.
+
+    For ``objective="time"`` with several vehicles the order comes from a bisection on PyVRP's route
+    length limit (:func:`~pmht_opt.tours.ordering.order_points_minmax`).
+    """
+    args = (layout.starts, layout.closed, layout.centres, settings.order_iterations, settings.seed)
+    routes: list[list[int]] | None
+    if settings.objective == "time" and len(layout.starts) > 1 and settings.bisection > 0:
+        routes = order_points_minmax(*args, steps=settings.bisection)
+    else:
+        routes = order_points(*args)
+    assert routes is not None
+    return Tour(layout, [list(map(int, r)) for r in routes], [layout.centres[r].copy() for r in routes])
+
+
+def settle(tour: Tour, objective: str) -> Tour:
+    """The better of the tour and the cone program on *all* its discs in the order it meets them.
+
+    That program's optimum is at most the polyline through the centres in the same order, so the
+    answer never exceeds it; usually the tour itself is better (its order constrains fewer discs).
+    """
+    placed = place(tour)
+    full = Tour(
+        tour.layout, [list(map(int, r)) for r in placed.routes], [placed.points[r] for r in placed.routes]
+    )
+    full = thin(solve_keys(full))
+    return full if full.covered().all() and better(full.score(objective), tour.score(objective)) else tour
+
+
+def _answer(problem: DiscProblem, frame: Frame, tour: Tour, info: dict[str, object]) -> DiscTours:
+    placed = place(tour)
+    M = problem.n_vehicles
+    turns = [frame.from_unit(tour.pts[m]) for m in range(M)]
+    out = DiscTours(
+        routes=placed.routes,
+        points=frame.from_unit(placed.points),
+        lengths=np.zeros(M),
+        turns=turns,
+        problem=problem,
+        info=info,
+    )
+    lengths = np.array([float(np.hypot(*np.diff(out.vertices(m), axis=0).T).sum()) for m in range(M)])
+    out = DiscTours(out.routes, out.points, lengths, turns, problem, info)
+    return out
+
+
+def plan_tours(
+    problem: DiscProblem,
+    settings: TourSettings | None = None,
+    *,
+    callback: Callable[[Progress], None] | None = None,
+    stop: Callable[[Progress], bool] | None = None,
+) -> DiscTours:
+    """Routes from each vehicle's start that together meet every target's disc.
+
+    Parameters
+    ----------
+    problem
+        Starts, discs and which routes are closed.
+    settings
+        Seed, objective and effort (iteration counts); defaults when None.
+    callback
+        Called with a :class:`Progress` after the first tour and after each iteration.
+    stop
+        A criterion ``stop(progress) -> bool``; the search ends when it returns True.
+
+    Raises
+    ------
+    SolverError
+        If a cone program fails or the answer does not pass the independent check.
+    """
+    settings = settings or TourSettings()
+    t0 = time.perf_counter()
+    M = problem.n_vehicles
+    if problem.n_targets == 0:
+        empty = [np.zeros(0, dtype=np.intp) for _ in range(M)]
+        answer = DiscTours(
+            empty, np.zeros((0, 2)), np.zeros(M), [np.zeros((0, 2)) for _ in range(M)], problem
+        )
+        check_tours(answer)
+        return answer
+    frame = unit_frame(problem.starts, problem.centres, problem.radii)
+    layout = Layout(
+        starts=frame.to_unit(problem.starts),
+        closed=np.asarray(problem.closed, dtype=bool),
+        centres=frame.to_unit(problem.centres),
+        radii=frame.length_to_unit(problem.radii),
+    )
+    rng = np.random.default_rng(settings.seed)
+    objective = settings.objective
+    first = initial_tour(layout, settings)
+    stages = {"centres": first.score(objective)[0] * frame.side}
+    polished = refine(first, objective)
+    stages["cone"] = polished.score(objective)[0] * frame.side
+    best = descend(polished, settings)  # (works in place)
+    best_score = best.score(objective)
+    stages["descent"] = best_score[0] * frame.side
+    current, current_score = best, best_score
+    scores = [best_score[0] * frame.side]
+    settled = 0
+    it = 0
+
+    def report() -> bool:
+        progress = Progress(it, tuple(scores), time.perf_counter() - t0, settled)
+        if callback is not None:
+            callback(progress)
+        return stop is not None and bool(stop(progress))
+
+    halt = report()
+    n_keys_max = max(1, problem.n_targets)
+    while not halt and it < settings.iterations and settled < settings.patience and problem.n_targets:
+        it += 1
+        cand = current.copy()
+        size = int(rng.integers(settings.ruin_min, settings.ruin_max + 1))
+        removed = ruin(cand, rng, min(size, n_keys_max))
+        inserted = repair(cand, rng, objective)
+        cand = descend(cand, settings, _near(cand, np.vstack([removed, inserted])))
+        cand_score = cand.score(objective)
+        if better(cand_score, best_score):
+            best, best_score, settled = cand, cand_score, 0
+            current, current_score = cand, cand_score
+        else:
+            settled += 1
+            threshold = settings.accept * (1 - it / max(settings.iterations, 1))
+            if cand_score[0] <= best_score[0] * (1 + threshold):  # record-to-record travel
+                current, current_score = cand, cand_score
+            elif current_score[0] > best_score[0] * (1 + threshold):
+                current, current_score = best, best_score
+        scores.append(best_score[0] * frame.side)
+        halt = report()
+    stages["search"] = best_score[0] * frame.side
+    best = settle(best, objective)
+    info: dict[str, object] = {"iterations": it, "seed": settings.seed, "history": scores, "stages": stages}
+    answer = _answer(problem, frame, best, info)
+    check_tours(answer)
+    return answer

@@ -1,0 +1,194 @@
+"""Straight-line tours through discs (pmht_opt.tours): known answers, invariances, checks, errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from pmht_opt.exceptions import ConfigError, SolverError
+from pmht_opt.tours import (
+    DiscProblem,
+    DiscTours,
+    Progress,
+    TourSettings,
+    check_tours,
+    coverage_gaps,
+    plan_tours,
+    read_mennell,
+)
+from pmht_opt.tours.socp import disc_sequence
+
+FAST = TourSettings(order_iterations=200, iterations=20, patience=10)
+
+
+def _random(seed: int, n: int = 25, m: int = 1, closed: bool = True) -> DiscProblem:
+    rng = np.random.default_rng(seed)
+    return DiscProblem(
+        rng.uniform(0, 10, (m, 2)), rng.uniform(0, 10, (n, 2)), rng.uniform(0.2, 1.0, n), closed
+    )
+
+
+def test_disc_holding_the_start_needs_no_travel() -> None:
+    for closed in (True, False):
+        tours = plan_tours(DiscProblem([[1.0, 1.0]], [[1.5, 1.0]], 1.0, closed), FAST)
+        assert tours.total == 0.0
+        assert tours.routes[0].tolist() == [0]
+        np.testing.assert_allclose(tours.points[0], [1.0, 1.0])
+
+
+def test_collinear_discs_open_and_closed() -> None:
+    centres = [[2.0, 0.0], [4.0, 0.0], [6.0, 0.0]]
+    open_ = plan_tours(DiscProblem([[0.0, 0.0]], centres, 0.5, False), FAST)
+    closed = plan_tours(DiscProblem([[0.0, 0.0]], centres, 0.5, True), FAST)
+    assert open_.total == pytest.approx(5.5, rel=1e-7)
+    assert closed.total == pytest.approx(11.0, rel=1e-7)
+    assert open_.routes[0].tolist() == [0, 1, 2]
+    assert closed.routes[0].tolist() == [0, 1, 2]  # met on the way out
+    assert len(closed.vertices(0)) == 3 and np.array_equal(closed.vertices(0)[-1], [0.0, 0.0])
+
+
+def test_overlapping_discs_met_by_one_point() -> None:
+    tours = plan_tours(DiscProblem([[0.0, 0.0]], [[3.0, 1.0], [3.0, -1.0]], 1.2, False), FAST)
+    assert tours.total == pytest.approx(3 - np.sqrt(1.2**2 - 1), rel=1e-7)
+
+
+def test_per_target_radii() -> None:
+    tours = plan_tours(DiscProblem([[0.0, 0.0]], [[5.0, 0.0], [10.0, 0.0]], [2.0, 1.0], False), FAST)
+    assert tours.total == pytest.approx(9.0, rel=1e-7)
+    assert np.all(coverage_gaps(tours, rtol=0.0) <= 1e-12)
+
+
+def test_closed_route_counts_the_leg_home() -> None:
+    problem = _random(3, n=15)
+    closed = plan_tours(problem, FAST)
+    open_ = plan_tours(DiscProblem(problem.starts, problem.centres, problem.radii, False), FAST)
+    assert open_.total < closed.total
+    v = closed.vertices(0)
+    assert np.array_equal(v[0], v[-1])
+    assert closed.lengths[0] == pytest.approx(float(np.hypot(*np.diff(v, axis=0).T).sum()), rel=1e-12)
+
+
+def test_every_target_once_and_covered_on_segments() -> None:
+    problem = _random(5, n=30, m=2, closed=False)
+    tours = plan_tours(problem, FAST)
+    listed = np.sort(np.concatenate(tours.routes))
+    assert listed.tolist() == list(range(30))
+    assert np.all(coverage_gaps(tours, rtol=1e-9) <= 0)
+    check_tours(tours)
+
+
+def test_same_seed_same_bits() -> None:
+    problem = _random(7)
+    a, b = plan_tours(problem, FAST), plan_tours(problem, FAST)
+    assert [r.tolist() for r in a.routes] == [r.tolist() for r in b.routes]
+    assert np.array_equal(a.points, b.points) and np.array_equal(a.lengths, b.lengths)
+
+
+@pytest.mark.parametrize("factor", [0.01, 100.0])
+def test_units_do_not_matter(factor: float) -> None:
+    problem = _random(11)
+    base = plan_tours(problem, FAST)
+    scaled = plan_tours(
+        DiscProblem(problem.starts * factor, problem.centres * factor, problem.radii * factor, True), FAST
+    )
+    assert [r.tolist() for r in scaled.routes] == [r.tolist() for r in base.routes]
+    np.testing.assert_allclose(scaled.lengths, base.lengths * factor, rtol=1e-9)
+
+
+def test_callback_and_stop_see_progress() -> None:
+    seen: list[Progress] = []
+    tours = plan_tours(_random(2), FAST, callback=seen.append, stop=lambda p: p.iteration >= 3)
+    assert [p.iteration for p in seen] == [0, 1, 2, 3]
+    assert all(len(p.scores) == p.iteration + 1 for p in seen)
+    assert seen[-1].scores[-1] == pytest.approx(tours.total)
+
+
+def test_bad_input_names_the_field() -> None:
+    with pytest.raises(ConfigError, match="radii"):
+        DiscProblem([[0.0, 0.0]], [[1.0, 1.0]], -1.0)
+    with pytest.raises(ConfigError, match="starts"):
+        DiscProblem([0.0, 0.0], [[1.0, 1.0]], 1.0)
+    with pytest.raises(ConfigError, match="centres"):
+        DiscProblem([[0.0, 0.0]], [[1.0, np.nan]], 1.0)
+    with pytest.raises(ConfigError, match="closed"):
+        DiscProblem([[0.0, 0.0]], [[1.0, 1.0]], 1.0, closed=np.array([True, False]))
+    with pytest.raises(ConfigError, match="objective"):
+        TourSettings(objective="fast")
+    with pytest.raises(ConfigError, match="seed"):
+        TourSettings(seed=-1)
+    with pytest.raises(ConfigError, match="iterations"):
+        TourSettings(iterations=1.5)  # type: ignore[arg-type]
+
+
+def test_check_refuses_a_wrong_tour() -> None:
+    tours = plan_tours(_random(4, n=10), FAST)
+    far = DiscTours(tours.routes, tours.points, tours.lengths, [t * 0 for t in tours.turns], tours.problem)
+    with pytest.raises(SolverError):
+        check_tours(far)
+
+
+def test_read_mennell(tmp_path: Path) -> None:
+    good = tmp_path / "a.cetsp"
+    good.write_text("//comment\n1 2 0 0.5 3\n3 4 0 0.25 1\n//Depot: 2.5, 1.5, 0\n")
+    depot, centres, radii = read_mennell(good, radius_factor=2.0)
+    np.testing.assert_array_equal(depot, [2.5, 1.5])
+    np.testing.assert_array_equal(centres, [[1, 2], [3, 4]])
+    np.testing.assert_array_equal(radii, [1.0, 0.5])
+    other = tmp_path / "b.cetsp"
+    other.write_text("//Depot is 100, 100, 0\n5 5 0 1 1\n")
+    assert read_mennell(other)[0].tolist() == [100.0, 100.0]
+    bad = tmp_path / "c.cetsp"
+    bad.write_text("//Depot is 1, 1, 0\n5 5 zero 1 1\n")
+    with pytest.raises(ConfigError, match=r"c\.cetsp, line 2"):
+        read_mennell(bad)
+    with pytest.raises(ConfigError, match="Depot"):
+        (tmp_path / "d.cetsp").write_text("5 5 0 1 1\n")
+        read_mennell(tmp_path / "d.cetsp")
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 10_000),
+    n=st.integers(1, 7),
+    m=st.integers(1, 2),
+    closed=st.booleans(),
+)
+def test_random_instances(seed: int, n: int, m: int, closed: bool) -> None:
+    rng = np.random.default_rng(seed)
+    problem = DiscProblem(
+        rng.uniform(0, 5, (m, 2)), rng.uniform(0, 5, (n, 2)), rng.uniform(0.1, 1.5, n), closed
+    )
+    tours = plan_tours(problem, TourSettings(order_iterations=50, iterations=5, patience=5))
+    assert np.all(coverage_gaps(tours) <= 0)
+    for k in range(m):
+        route = tours.routes[k]
+        c, r, s = problem.centres[route], problem.radii[route], problem.starts[k]
+        lower = disc_sequence(s, c, r, closed)[1]  # the best polyline meeting the discs in this order
+        through = np.vstack([s, c, s] if closed else [s, c])
+        upper = float(np.hypot(*np.diff(through, axis=0).T).sum())
+        assert lower * (1 - 1e-6) - 1e-9 <= tours.lengths[k] <= upper * (1 + 1e-9) + 1e-12
+
+
+def test_time_objective_shortens_the_longest_route() -> None:
+    rng = np.random.default_rng(8)
+    problem = DiscProblem([[0.0, 0.0], [0.0, 1.0], [0.0, 2.0]], rng.uniform(0, 10, (30, 2)), 0.3, False)
+    dist = plan_tours(problem, FAST)
+    time_ = plan_tours(
+        problem, TourSettings(objective="time", order_iterations=200, iterations=20, patience=10)
+    )
+    assert time_.makespan <= dist.makespan * (1 + 1e-9)
+    assert time_.total >= dist.total * (1 - 1e-9) or time_.makespan < dist.makespan
+    check_tours(time_)
+
+
+def test_every_vehicle_starts_from_its_own_start() -> None:
+    problem = DiscProblem([[0.0, 0.0], [10.0, 10.0]], [[1.0, 0.0], [9.0, 10.0]], 0.2, True)
+    tours = plan_tours(problem, FAST)
+    assert tours.routes[0].tolist() == [0] and tours.routes[1].tolist() == [1]
+    assert tours.total == pytest.approx(2 * 0.8 * 2, rel=1e-7)
+    for m in range(2):
+        assert np.array_equal(tours.vertices(m)[0], problem.starts[m])
