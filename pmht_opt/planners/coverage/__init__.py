@@ -1,12 +1,12 @@
-"""Full coverage at a sensor radius: :func:`plan_coverage`.
+"""Full coverage at a sensor radius: ``plan(scenario, "coverage")`` and :func:`plan_coverage`.
 
-A locale is covered when some platform's path passes within the sensor radius of it (docs/model.md
-section 11). The planner looks for the shortest smooth plan that covers every locale: tours of the
-locales (:mod:`.search`), the shortest polylines through the locales' discs in tour order
-(:mod:`.discs`), the tours ordered again on the points where those polylines touch the discs, and the
-model's smoother flying the best polylines with each disc a hard constraint (:mod:`.tracking`).
+A locale is covered when some platform's path passes within its sensor radius (docs/model.md
+section 11). The planner finds the shortest straight-line routes that meet every locale's disc
+(:mod:`pmht_opt.tours`) and flies them as smooth paths that meet every disc at its full radius
+(:mod:`.fly`, with the smoothing rule of :mod:`.flight` and the disc constraint of :mod:`.discs`).
 """
 
-from pmht_opt.planners.coverage.planner import CoverageProgress, missed_locales, plan_coverage
+from pmht_opt.planners.coverage.method import CoverageOptions, CoveragePlanner
+from pmht_opt.planners.coverage.planner import missed_locales, plan_coverage
 
-__all__ = ["CoverageProgress", "missed_locales", "plan_coverage"]
+__all__ = ["CoverageOptions", "CoveragePlanner", "missed_locales", "plan_coverage"]

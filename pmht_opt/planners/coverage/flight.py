@@ -1,0 +1,150 @@
+r"""How a straight-line tour is flown: the speed along each route and the smoothing rule.
+
+Each platform flies its route's polyline (start, turn points, and home again when closed) in the
+horizon with a :class:`SpeedProfile`: from rest, speeding up over the first steps, at constant
+speed, and, where the mission ends at rest, slowing down to it. The smooth path follows that motion
+through the model's smoother (:mod:`pmht_opt.planners.coverage.fly`).
+
+The smoothing rule
+------------------
+The smoother of a constant-acceleration model with white jerk noise of intensity ``q``, measured
+every ``dt`` with variance ``r``, passes motions slower than its time constant
+:math:`\tau = (r\,dt/q)^{1/6}` and smooths out faster ones (its frequency response is
+:math:`1 / (1 + (r\,dt/q)\,\omega^6)`). A platform moving at speed :math:`v` therefore rounds the
+tour's corners over a length of about :math:`\ell = v\tau`: that length, not ``q`` or the horizon,
+is what a user sees. The coverage planner fixes it in the units of the problem,
+
+.. math::
+
+    \ell = \kappa\,\lambda, \qquad \lambda = \operatorname{median}_n \rho_n,
+
+a fraction :math:`\kappa` (``smoothing``) of the median coverage radius, so that a plan does not
+depend on the horizon ``T`` the user picked nor on the units of the coordinates: scaling every
+coordinate and radius by ``s`` scales the plan by ``s``, and another ``T`` samples the same motion
+more or less densely. From :math:`\ell` it sets :math:`r = \lambda^2` (the measurements' scale) and,
+per platform with speed :math:`v_m`, :math:`\tau_m = \ell / v_m`; the model's ``q`` is the one of the
+slowest platform and the others' measurements weigh :math:`(\tau_{\max} / \tau_m)^6` more, which gives
+each platform its own :math:`\tau_m` with one motion model.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from pmht_opt.exceptions import ConfigError
+
+#: The speed ramps up from rest over ``T // RAMP_FRACTION`` steps (and down before a terminal point).
+RAMP_FRACTION = 20
+#: The shortest time constant used, in steps: smoothing finer than the sampling has nothing to do.
+MIN_TAU_STEPS = 0.5
+
+
+@dataclasses.dataclass(frozen=True)
+class SpeedProfile:
+    """Arc length against time along a polyline of ``length``, flown in ``steps`` steps.
+
+    The speed ramps up linearly from rest over the first ``ramp_in`` steps (platforms start at rest: a
+    measurement already moving at full speed at ``t = 1`` would cost a jolt), is constant, and ramps
+    down to rest over the last ``ramp_out`` steps (0: arrive at full speed).
+    """
+
+    length: float
+    steps: int
+    ramp_in: int
+    ramp_out: int
+
+    @property
+    def speed(self) -> float:
+        """The cruising speed, in length per step."""
+        return self.length / max(self.steps - 0.5 * (self.ramp_in + self.ramp_out), 1e-12)
+
+    def arc(self, t: np.ndarray) -> np.ndarray:
+        """Arc length reached at (real) times ``t``."""
+        v, a, b, n = self.speed, self.ramp_in, self.ramp_out, self.steps
+        t = np.clip(np.asarray(t, dtype=float), 0.0, n)
+        s = v * (t - 0.5 * a)
+        if a > 0:
+            s = np.where(t < a, v * t * t / (2 * a), s)
+        if b > 0:
+            s = np.where(t > n - b, self.length - v * (n - t) ** 2 / (2 * b), s)
+        return np.minimum(s, self.length)
+
+    def time(self, s: np.ndarray) -> np.ndarray:
+        """Times at which arc lengths ``s`` are reached (the inverse of :meth:`arc`)."""
+        v, a, b, n = self.speed, self.ramp_in, self.ramp_out, self.steps
+        s = np.clip(np.asarray(s, dtype=float), 0.0, self.length)
+        t = s / v + 0.5 * a
+        if a > 0:
+            t = np.where(s < 0.5 * v * a, np.sqrt(2 * a * s / v), t)
+        if b > 0:
+            t = np.where(
+                s > self.length - 0.5 * v * b, n - np.sqrt(np.maximum(2 * b * (self.length - s) / v, 0)), t
+            )
+        return t
+
+
+@dataclasses.dataclass(frozen=True)
+class SmoothingModel:
+    """The model the smoother flies the tours with (module notes): ``q``, ``r`` and each platform's
+    measurement weight."""
+
+    q: float
+    r: float
+    weights: np.ndarray
+
+
+def smoothing_model(
+    lengths: np.ndarray, steps: int, dt: float, radii: np.ndarray, smoothing: float
+) -> SmoothingModel:
+    """The smoothing rule of the module notes for routes of ``lengths`` flown in ``steps`` steps.
+
+    Idle platforms (length 0) take weight 1; they hold their start.
+    """
+    if not (smoothing > 0 and np.isfinite(smoothing)):
+        raise ConfigError(f"smoothing: expected a positive number, got {smoothing!r}.")
+    scale = float(np.median(radii))
+    turn = smoothing * scale
+    speed = np.asarray(lengths, dtype=float) / max(steps * dt, 1e-300)  # per second
+    moving = speed > 0
+    tau = np.full(speed.shape, np.inf)
+    tau[moving] = np.maximum(turn / speed[moving], MIN_TAU_STEPS * dt)
+    r = scale * scale
+    if not np.any(moving):
+        return SmoothingModel(q=r * dt / (MIN_TAU_STEPS * dt) ** 6, r=r, weights=np.ones(speed.shape))
+    slowest = float(np.max(tau[moving]))
+    q = r * dt / slowest**6
+    weights = np.ones(speed.shape)
+    weights[moving] = (slowest / tau[moving]) ** 6
+    return SmoothingModel(q=q, r=r, weights=weights)
+
+
+def ramp_steps(horizon: int, steps: int) -> int:
+    """Steps over which a platform speeds up from rest (and slows down to it)."""
+    return min(max(horizon // RAMP_FRACTION, 1), max(steps // 3, 0))
+
+
+def visit_steps(t_real: np.ndarray, T: int, apart: np.ndarray) -> np.ndarray:
+    """Steps ``1..T`` nearest to the times ``t_real`` (ascending) at which the visit points are reached.
+
+    Kept in order, and one step apart where ``apart[k]`` (visit point ``k`` differs from ``k - 1``):
+    two discs that no one point meets cannot share a step. Raises ``ConfigError`` when the horizon has
+    fewer steps than the route has distinct visit points.
+    """
+    t = np.clip(np.rint(t_real).astype(int), 1, T)
+    gap = apart.astype(int)
+    if gap.size:
+        gap[0] = 0
+    for k in range(1, t.size):
+        t[k] = max(t[k], t[k - 1] + gap[k])
+    if t.size:
+        t[-1] = min(t[-1], T)
+    for k in range(t.size - 2, -1, -1):
+        t[k] = min(t[k], t[k + 1] - gap[k + 1])
+    if t.size and t[0] < 1:
+        raise ConfigError(
+            f"horizon: {T} steps cannot hold a route with {int(gap.sum()) + 1} distinct visits; "
+            "lengthen the horizon."
+        )
+    return t

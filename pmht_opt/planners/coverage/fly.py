@@ -1,0 +1,244 @@
+"""Smooth paths that follow straight-line tours closely and meet every locale's disc.
+
+Each platform's route is flown along its polyline (:mod:`~pmht_opt.planners.coverage.flight`): the
+positions it reaches at every step are synthetic measurements of the model's smoother, one per step,
+weighted by the smoothing rule; every locale's disc, at its full radius, is a hard constraint at the
+step the motion reaches its visit point (:class:`~pmht_opt.planners.coverage.discs.VisitDiscs`), with
+the user's constraints beside it. That is the M-step of docs/model.md section 4.4 with fixed weights:
+it is solved a few times, each moving every disc's step to where the last path passes closest (and
+re-linearising the constraints that depend on the path, such as obstacles). The M-step's backend
+checks each answer against the exact smoother; the returned plan is verified on its positions
+(:func:`pmht_opt.verify.verify_plan`) and every locale's coverage is measured on its segments.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from pmht_opt.constraints.base import Constraint, ConstraintContext
+from pmht_opt.constraints.terminal import Terminal
+from pmht_opt.exceptions import SolverError
+from pmht_opt.geometry import missed_locales
+from pmht_opt.model import POS, VEL
+from pmht_opt.mstep import MStepData, make_mstep, mstep_objective
+from pmht_opt.parallel import usable_cores
+from pmht_opt.planners.coverage.discs import VisitDiscs
+from pmht_opt.planners.coverage.flight import (
+    SmoothingModel,
+    SpeedProfile,
+    ramp_steps,
+    smoothing_model,
+    visit_steps,
+)
+from pmht_opt.result import IterationHistory, PlanResult
+from pmht_opt.scenario import Scenario
+from pmht_opt.settings import Settings
+from pmht_opt.tours import DiscTours
+from pmht_opt.verify import verify_plan
+
+#: How close (relative to the tour's size) a visit point lies to the segment it is placed on.
+ON_POLYLINE = 1e-9
+#: A locale's disc may be met up to ``T // WINDOW_FRACTION`` steps from where the tour meets it.
+WINDOW_FRACTION = 25
+
+
+def terminal_ends(scenario: Scenario, constraints: Sequence[Constraint]) -> tuple[np.ndarray, bool]:
+    """Final positions ``(M, 2)`` the user's :class:`~pmht_opt.Terminal` constraints ask for (NaN:
+    free), and whether any terminal condition asks the platforms to end at rest or in place."""
+    ends = np.full((scenario.n_platforms, 2), np.nan)
+    found = False
+    for con in constraints:
+        if not isinstance(con, Terminal):
+            continue
+        found = True
+        targets = con.targets(scenario)
+        if targets is not None:
+            for m in con.applies_to(scenario):
+                ends[m] = targets[0 if targets.shape[0] == 1 else m]
+    return ends, found
+
+
+def closed_routes(scenario: Scenario, constraints: Sequence[Constraint]) -> np.ndarray:
+    """``(M,)`` whether each platform's route returns to its start (a terminal position there)."""
+    ends, _ = terminal_ends(scenario, constraints)
+    return np.all(np.isclose(ends, scenario.start_positions, rtol=0.0, atol=1e-9), axis=1)
+
+
+class Track:
+    """The motion along each route (synthetic measurements) and the steps at which discs are met."""
+
+    def __init__(self, scenario: Scenario, tours: DiscTours, ends: np.ndarray, at_rest: bool) -> None:
+        T, N, M = scenario.horizon, scenario.n_locales, scenario.n_platforms
+        self.reserve = max(1, T // 10) if at_rest else 0
+        steps = max(T - self.reserve, 1)
+        ramp = ramp_steps(T, steps)
+        self.positions = np.repeat(scenario.start_positions[:, None, :], T + 1, axis=1)
+        self.visit_time = np.ones(N, dtype=int)
+        self.platform = np.zeros(N, dtype=int)
+        self.lengths = np.zeros(M)
+        self.polylines: list[np.ndarray] = []
+        t_grid = np.arange(1, T + 1, dtype=float)
+        for m in range(M):
+            poly = tours.vertices(m)
+            if not np.any(np.isnan(ends[m])) and not np.allclose(poly[-1], ends[m]):
+                poly = np.vstack([poly, ends[m]])  # an end other than the start: flown to last
+            self.polylines.append(poly)
+            arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(poly, axis=0).T))])
+            self.lengths[m] = arcs[-1]
+            route = np.asarray(tours.routes[m], dtype=int)
+            self.platform[route] = m
+            if arcs[-1] <= 0.0:
+                continue  # idle: holds its start
+            profile = SpeedProfile(float(arcs[-1]), steps, ramp, ramp if at_rest else 0)
+            along = profile.arc(t_grid)
+            self.positions[m, 1:] = np.column_stack(
+                [np.interp(along, arcs, poly[:, 0]), np.interp(along, arcs, poly[:, 1])]
+            )
+            if route.size:
+                s = _arc_of(poly, arcs, tours.points[route])
+                apart = np.ones(route.size, dtype=bool)
+                apart[1:] = np.hypot(*np.diff(tours.points[route], axis=0).T) > 1e-9 * max(arcs[-1], 1e-300)
+                self.visit_time[route] = visit_steps(profile.time(s), steps, apart)
+
+    def initial_states(self, scenario: Scenario) -> np.ndarray:
+        """``(M, T+1, 6)`` the motion as states (positions, and velocities by differences)."""
+        states = np.repeat(scenario.initial_states[:, None, :], scenario.horizon + 1, axis=1)
+        states[:, 1:, :] = 0.0
+        states[:, 1:, POS] = self.positions[:, 1:]
+        states[:, 1:, VEL] = np.gradient(self.positions, scenario.dt, axis=1)[:, 1:]
+        return states
+
+
+def _arc_of(poly: np.ndarray, arcs: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Arc length along ``poly`` (cumulative ``arcs``) of the points on it, in route order: each is
+    placed on the first segment, at or after the previous point's, that it lies on (to rounding; a
+    closed route passes its start twice), or else the nearest."""
+    out = np.zeros(points.shape[0])
+    on = ON_POLYLINE * max(float(arcs[-1]), float(np.max(np.abs(poly))), 1e-300)
+    lo = 0
+    for k, p in enumerate(points):
+        a, b = poly[lo:-1], poly[lo + 1 :]
+        d = b - a
+        len2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
+        u = np.clip(np.einsum("ij,ij->i", p - a, d) / len2, 0.0, 1.0)
+        gap = np.hypot(*(a + u[:, None] * d - p).T)
+        hits = np.flatnonzero(gap <= on)
+        j = int(hits[0]) if hits.size else int(np.argmin(gap))
+        out[k] = arcs[lo + j] + u[j] * np.sqrt(len2[j])
+        lo += j
+    return np.maximum.accumulate(out)
+
+
+def fly(
+    scenario: Scenario,
+    tours: DiscTours,
+    settings: Settings,
+    smoothing: float,
+    iterations: int,
+) -> PlanResult:
+    """Smooth paths along ``tours``, every locale within its radius of its route's platform.
+
+    Raises :class:`~pmht_opt.exceptions.InfeasibleError` (from the M-step's diagnosis) when the discs
+    cannot be met together with the user's constraints along these routes, and
+    :class:`~pmht_opt.exceptions.SolverError` when a backend fails or the plan does not pass its checks.
+    """
+    t0 = time.perf_counter()
+    ends, at_rest = terminal_ends(scenario, settings.constraints)
+    track = Track(scenario, tours, ends, at_rest)
+    T, M, N = scenario.horizon, scenario.n_platforms, scenario.n_locales
+    model = smoothing_model(track.lengths, T - track.reserve, scenario.dt, scenario.radii, smoothing)
+    flown = scenario.replace(q=model.q, r=model.r)
+    window = max(1, T // WINDOW_FRACTION)
+    discs = VisitDiscs(track.platform, track.visit_time, scenario.locales, scenario.radii, window)
+    constraints = (*settings.constraints, discs)
+    W, WZ = _measurements(track, model, T)
+    states = track.initial_states(scenario)
+    objectives, times, statuses, fallbacks, counts = [], [], [], [], []
+    threads = settings.threads if settings.threads is not None else min(M, usable_cores())
+    mstep = make_mstep(
+        flown, settings.solver, settings.solver_settings, settings.accept_inaccurate, threads, constraints
+    )
+    active = tuple(range(len(constraints)))
+    try:
+        ctx = ConstraintContext(scenario=flown, states=states, iteration=1)
+        for it in range(1, iterations + 1):
+            ctx = ConstraintContext(scenario=flown, states=states, iteration=it)
+            start = time.perf_counter()
+            out = mstep.solve(MStepData(W=W, WZ=WZ, r=model.r, ctx=ctx, active=active))
+            times.append(time.perf_counter() - start)
+            states = out.states
+            objectives.append(_objective(flown, states, W, WZ, model))
+            statuses.append(out.status)
+            fallbacks.append(out.fallbacks)
+            counts.append(out.iterations)
+    finally:
+        mstep.close()
+    solver = getattr(mstep, "solver", mstep.name)
+    if not np.all(np.isfinite(states)):
+        raise SolverError(f"{solver}: the coverage plan is not finite.", backend=str(solver))
+    ctx = ConstraintContext(scenario=flown, states=states, iteration=iterations)
+    reports = tuple(c.violation(states, ctx) for c in constraints)
+    verify_plan(str(solver), scenario, constraints, reports)
+    missed = missed_locales(scenario.locales, states[:, :, POS], scenario.radii)
+    if missed.size:
+        raise SolverError(
+            f"{solver}: locales {missed.tolist()} are further than their radius from every path.",
+            backend=str(solver),
+        )
+    history = IterationHistory(
+        objective=np.array([np.nan, *objectives]),
+        estep_time=np.zeros(iterations + 1),
+        mstep_time=np.array(times),
+        solver_iterations=np.array(counts, dtype=int),
+        r=np.full(iterations + 1, model.r),
+        fallbacks=np.array(fallbacks, dtype=int),
+        mstep_status=tuple(statuses),
+        estep_gated=np.zeros(iterations + 1, dtype=bool),
+        stop_reason="MaxIterations",
+    )
+    prior = np.zeros((N, M))
+    prior[np.arange(N), track.platform] = 1.0
+    return PlanResult(
+        scenario=scenario,
+        states=states,
+        assignment=track.platform,
+        visit_time=discs.visit_steps(ctx),
+        platform_prior=prior,
+        history=history,
+        converged=False,
+        wall_time=time.perf_counter() - t0,
+        solver=str(solver),
+        constraints=constraints,
+        reports=reports,
+        planner="coverage",
+        extras={
+            "routes": [np.asarray(r) for r in tours.routes],
+            "visit_points": tours.points,
+            "tour": [p.copy() for p in track.polylines],
+            "tour_length": float(track.lengths.sum()),
+            "tour_lengths": track.lengths.copy(),
+            "smoothing": {"factor": smoothing, "q": model.q, "r": model.r, "weights": model.weights.tolist()},
+        },
+    )
+
+
+def _measurements(track: Track, model: SmoothingModel, T: int) -> tuple[np.ndarray, np.ndarray]:
+    """``W (T, M)`` and ``WZ (T, M, 2)`` of the motion along every route, weighted by the rule."""
+    M = track.positions.shape[0]
+    W = np.repeat(model.weights[None, :], T, axis=0)
+    WZ = W[..., None] * track.positions[:, 1:].transpose(1, 0, 2)
+    assert W.shape == (T, M)
+    return W, WZ
+
+
+def _objective(
+    scenario: Scenario, states: np.ndarray, W: np.ndarray, WZ: np.ndarray, model: SmoothingModel
+) -> float:
+    """The M-step's cost of ``states`` (smaller is better)."""
+    return float(mstep_objective(scenario.model, states, W, WZ, model.r))
+
+
+__all__ = ["closed_routes", "fly", "terminal_ends"]
