@@ -33,12 +33,15 @@ import dataclasses
 
 import numpy as np
 
+from pmht_opt import validation
 from pmht_opt.exceptions import ConfigError
 
 #: The speed ramps up from rest over ``T // RAMP_FRACTION`` steps (and down before a terminal point).
 RAMP_FRACTION = 20
 #: The shortest time constant used, in steps: smoothing finer than the sampling has nothing to do.
 MIN_TAU_STEPS = 0.5
+#: The longest, in steps (a slow platform's): beyond it the smoother only lags further behind.
+MAX_TAU_STEPS = 50.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,13 +113,18 @@ def smoothing_model(
     moving = speed > 0
     tau = np.full(speed.shape, np.inf)
     tau[moving] = np.maximum(turn / speed[moving], MIN_TAU_STEPS * dt)
-    r = scale * scale
-    if not np.any(moving):
-        return SmoothingModel(q=r * dt / (MIN_TAU_STEPS * dt) ** 6, r=r, weights=np.ones(speed.shape))
-    slowest = float(np.max(tau[moving]))
-    q = r * dt / slowest**6
+    slowest = float(np.max(tau[moving])) if np.any(moving) else MIN_TAU_STEPS * dt
+    slowest = min(slowest, MAX_TAU_STEPS * dt)
     weights = np.ones(speed.shape)
-    weights[moving] = (slowest / tau[moving]) ** 6
+    weights[moving] = (slowest / np.minimum(tau[moving], slowest)) ** 6
+    # Only q / r = dt / tau^6 shapes the paths; r = scale^2 keeps the measurements at the problem's
+    # size, moved (with q, their ratio kept) where q would leave the range the numerics handle.
+    r = scale * scale
+    q = r * dt / slowest**6
+    lo, hi = validation.Q_RANGE
+    if not lo <= q <= hi:
+        q = min(max(q, lo), hi)
+        r = q * slowest**6 / dt
     return SmoothingModel(q=q, r=r, weights=weights)
 
 

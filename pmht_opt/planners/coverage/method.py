@@ -35,8 +35,10 @@ from pmht_opt.tours import Progress as TourProgress
 SEARCH_OPTIONS = tuple(
     f.name for f in dataclasses.fields(TourSettings) if f.name not in ("seed", "objective")
 )
-#: The smoothing rule's default: corners rounded over a tenth of the median coverage radius.
-DEFAULT_SMOOTHING = 0.1
+#: The smoothing rule's default: corners rounded over 0.3 of the median coverage radius (measured on
+#: the development cases of the CETSP benchmark: 1.2% longer than the straight tour on average, 2.2% at most;
+#: 0.1 gave 0.4% and 0.9%, 1.0 gave 3.6% and 7.6%).
+DEFAULT_SMOOTHING = 0.3
 #: Iterations of the flight: each moves every disc's step to where the last path passes closest.
 ITERATIONS = 3
 #: The same when a user constraint is re-linearised at each iterate (obstacles).
