@@ -76,6 +76,8 @@ class CoverageOptions:
     search: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if self.radius is not None:
+            object.__setattr__(self, "radius", _radius(self.radius))
         if self.objective not in ("distance", "time"):
             raise ConfigError(f"objective: expected 'distance' or 'time', got {self.objective!r}.")
         validation.real("smoothing", self.smoothing, ConfigError, 0.0, 1e6, lo_open=True)
@@ -121,6 +123,7 @@ def plan_cover(
     """The coverage plan of ``scenario`` (module notes); ``stop`` and ``callback`` follow the tour
     search's iterations (stage ``"search"``)."""
     t0 = time.perf_counter()
+    scenario = scenario.replace()  # checked again: a scenario changed after it was made is refused
     visits = [c.name for c in settings.constraints if isinstance(c, VisitAll)]
     if visits:
         raise ConfigError(
@@ -158,7 +161,12 @@ def plan_cover(
 
 
 def _radius(radius: Any) -> float | np.ndarray:
-    """A radius option: one positive number, or one per locale (checked by the scenario)."""
-    if np.ndim(radius) == 0:
+    """A radius option: one positive number, or one per locale (their number checked by the
+    scenario)."""
+    if isinstance(radius, str) or np.ndim(radius) == 0:
         return validation.real("radius", radius, ConfigError, 0.0, validation.RADIUS_MAX, lo_open=True)
-    return np.asarray(radius, dtype=float)
+    arr = validation.real_array("radius", radius, ConfigError)
+    good = arr.ndim == 1 and np.all(np.isfinite(arr)) and np.all((arr > 0) & (arr <= validation.RADIUS_MAX))
+    if not good:
+        raise ConfigError(f"radius: expected one positive number or one per locale, got {radius!r}.")
+    return arr
