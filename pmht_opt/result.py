@@ -18,6 +18,9 @@ from pmht_opt.geometry import count_crossings, miss_distances, missed
 from pmht_opt.model import ACC, POS, VEL
 from pmht_opt.scenario import Scenario
 
+#: A platform has arrived once it stays within this much (relative to the coordinates) of its end.
+ARRIVED = 1e-9
+
 
 def excursion(points: np.ndarray, bounds: tuple[float, float, float, float]) -> float:
     """Largest distance of any point ``(..., 2)`` outside the box ``(xmin, xmax, ymin, ymax)``."""
@@ -167,6 +170,22 @@ class PlanResult:
         return float(self.distance_per_platform.sum())
 
     @cached_property
+    def arrival_time(self) -> np.ndarray:
+        """``(M,)`` when each platform reaches the place it ends at and stays there (s): the end of
+        its route, home for a closed one. A platform still moving at the horizon arrives at
+        ``T dt``."""
+        pos = self.positions
+        scale = max(1.0, float(np.max(np.abs(pos))))
+        away = np.hypot(*(pos - pos[:, -1:, :]).transpose(2, 0, 1)) > ARRIVED * scale  # (M, T+1)
+        last = np.where(away.any(axis=1), pos.shape[1] - 1 - np.argmax(away[:, ::-1], axis=1), -1)
+        return (last + 1) * self.scenario.dt
+
+    @property
+    def mission_time(self) -> float:
+        """When the last platform arrives (:attr:`arrival_time`): how long the mission takes."""
+        return float(np.max(self.arrival_time))
+
+    @cached_property
     def miss_distance(self) -> np.ndarray:
         """``(N,)`` distance from each locale to the nearest path, measured on the segments between
         consecutive positions (docs/model.md section 11)."""
@@ -254,6 +273,7 @@ class PlanResult:
         rho = self._radius(radius)
         return {
             "total_distance": self.total_distance,
+            "mission_time": self.mission_time,
             "coverage": self.coverage(rho),
             "coverage_radius": rho.tolist() if isinstance(rho, np.ndarray) else rho,
             "missed_locales": self.missed_locales(rho).tolist(),

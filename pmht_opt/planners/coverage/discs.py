@@ -1,26 +1,38 @@
-"""Every locale's disc met by its route's platform at one step near where the tour meets it."""
+r"""Every locale's disc met by its route's platform, on a segment of its path near where the tour meets it.
+
+Coverage is measured on the segments between consecutive positions (a platform flies straight between
+them), so the constraint is written on a segment too: for locale :math:`n` on platform :math:`m`, a
+step :math:`t_n` and a fraction :math:`\alpha_n \in [0, 1]`,
+
+.. math::
+
+    \lVert (1 - \alpha_n)\, p^m_{t_n} + \alpha_n\, p^m_{t_n + 1} - z_n \rVert \le \rho_n,
+
+one second-order cone on two positions: the point of the segment at :math:`\alpha_n` within the disc.
+Written on a sample alone (:math:`\alpha_n = 0`), a disc the tour only touches would have to hold a
+sample exactly at the touch point, which the motion reaches between two steps: the smoother would have
+to bend the path there, against a speed limit at its cruise speed.
+
+:math:`(t_n, \alpha_n)` is re-chosen at every iteration: the point of the current path, within
+``window`` steps of where the motion first reaches the locale's visit point, nearest the locale. A path
+that met the discs at the last iteration's points meets them at these too (the nearest point is no
+further), so once one iteration is feasible every later one is.
+"""
 
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 from pmht_opt.constraints.base import Constraint, ConstraintContext, ConstraintReport
-from pmht_opt.constraints.blocks import Block, disc_block
-from pmht_opt.constraints.visits import can_share_step
-from pmht_opt.model import POS, PX, PY
+from pmht_opt.constraints.blocks import Block
+from pmht_opt.model import POS, PX, PY, STATE_DIM
 from pmht_opt.scenario import describe_radius
 
 
 class VisitDiscs(Constraint):
-    """Locale ``n`` within ``radii[n]`` of platform ``platform[n]`` at one step near ``times[n]``.
-
-    Unlike :class:`~pmht_opt.constraints.VisitAll`, the platform is given: the tour's. The step is
-    re-chosen at every iteration: the step within ``window`` of ``times[n]`` at which the current path
-    is closest to the locale. A path that met the discs at the last iteration's steps meets them at
-    these too, so once one iteration is feasible every later one is. A path that does not meet them
-    yet can be closest to two discs that no point meets at one step; that platform then keeps the
-    given ``times`` for the iteration.
-    """
+    """Locale ``n`` within ``radii[n]`` of platform ``platform[n]``'s path, on the segment after step
+    ``t`` at fraction ``alpha`` (module notes), near step ``times[n]``."""
 
     needs = frozenset({"soc"})
     dynamic = True
@@ -48,55 +60,70 @@ class VisitDiscs(Constraint):
         """The smallest radius: violations are judged relative to it."""
         return float(np.min(self.radii)) if self.radii.size else 1.0
 
-    def visit_steps(self, ctx: ConstraintContext) -> np.ndarray:
-        """``(N,)`` the step of each locale's disc in the M-step of ``ctx``."""
-        T = ctx.scenario.horizon
-        if self.window == 0:
-            return self.times
-        pos = ctx.states[:, :, POS]
-        out = self.times.copy()
-        for n, (m, t) in enumerate(zip(self.platform, self.times, strict=True)):
-            lo, hi = max(1, t - self.window), min(T, t + self.window)
-            out[n] = lo + int(np.argmin(np.hypot(*(pos[m, lo : hi + 1] - self.centres[n]).T)))
-        for m in np.unique(self.platform):
-            mine = np.flatnonzero(self.platform == m)
-            if _clash(out[mine], self.centres[mine], self.radii[mine]):
-                out[mine] = self.times[mine]
-        return out
+    def visit_points(self, positions: np.ndarray, T: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(steps (N,), alpha (N,))``: for each locale, the point of ``positions (M, T+1, 2)``
+        within the window of its nominal step nearest to it, as the segment after a step
+        (``1..T``; the last step's segment is the point itself) and a fraction of it."""
+        N = self.platform.shape[0]
+        steps = np.empty(N, dtype=int)
+        alpha = np.zeros(N)
+        for n in range(N):
+            m, t0 = int(self.platform[n]), int(self.times[n])
+            lo, hi = max(1, t0 - self.window), min(T, t0 + self.window)
+            a = positions[m, lo : hi + 1]  # segment starts, steps lo..hi
+            b = positions[m, np.minimum(np.arange(lo, hi + 1) + 1, T)]
+            d = b - a
+            len2 = np.einsum("ij,ij->i", d, d)
+            along = np.einsum("ij,ij->i", self.centres[n] - a, d) / np.maximum(len2, 1e-300)
+            u = np.clip(np.where(len2 > 0, along, 0.0), 0.0, 1.0)
+            gap = np.hypot(*(a + u[:, None] * d - self.centres[n]).T)
+            j = int(np.argmin(gap))
+            steps[n], alpha[n] = lo + j, u[j] if lo + j < T else 0.0
+        return steps, alpha
 
     def blocks(self, ctx: ConstraintContext) -> list[Block]:
-        times, T = self.visit_steps(ctx), ctx.scenario.horizon
+        T = ctx.scenario.horizon
+        steps, alpha = self.visit_points(ctx.states[:, :, POS], T)
         out = []
         for m in range(ctx.scenario.n_platforms):
             mine = np.flatnonzero(self.platform == m)
-            if mine.size:
-                blk = disc_block(
-                    m,
-                    T,
-                    times[mine],
-                    (PX, PY),
-                    self.centres[mine],
-                    self.radii[mine],
-                    labels=[f"locale {n}" for n in mine.tolist()],
-                )
-                nominal = self.times[mine]
-                blk.span = np.column_stack(
-                    [np.maximum(nominal - self.window, 1), np.minimum(nominal + self.window, T)]
-                )
-                out.append(blk)
+            if mine.size == 0:
+                continue
+            blk = _segment_discs(m, T, steps[mine], alpha[mine], self.centres[mine], self.radii[mine])
+            blk.labels = [f"locale {n}" for n in mine.tolist()]
+            nominal = self.times[mine]
+            blk.span = np.column_stack(
+                [np.maximum(nominal - self.window, 1), np.minimum(nominal + self.window + 1, T)]
+            )
+            out.append(blk)
         return out
 
     def violation(self, states: np.ndarray, ctx: ConstraintContext) -> ConstraintReport:
         report = super().violation(states, ctx)
-        times = self.visit_steps(ctx)
-        dist = np.hypot(*(states[self.platform, times][:, POS] - self.centres).T)
+        T = ctx.scenario.horizon
+        pos = states[:, :, POS]
+        steps, alpha = self.visit_points(pos, T)
+        after = np.minimum(steps + 1, T)
+        at = (1 - alpha)[:, None] * pos[self.platform, steps] + alpha[:, None] * pos[self.platform, after]
+        dist = np.hypot(*(at - self.centres).T)
         report.details["visits_met"] = int(np.sum(dist <= self.radii * (1.0 + 1e-6)))
         return report
 
 
-def _clash(steps: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> bool:
-    """Whether two of one platform's discs share a step although no point meets both
-    (:func:`~pmht_opt.constraints.visits.can_share_step`)."""
-    same = steps[:, None] == steps[None, :]
-    apart = np.hypot(*(centres[:, None, :] - centres[None, :, :]).transpose(2, 0, 1))
-    return bool(np.any(same & ~can_share_step(apart, radii[:, None] + radii[None, :])))
+def _segment_discs(
+    platform: int, T: int, steps: np.ndarray, alpha: np.ndarray, centres: np.ndarray, radii: np.ndarray
+) -> Block:
+    """``||(1 - a) p_t + a p_{t+1} - c|| <= r`` per unit (module notes): rows ``(r, c - point)``."""
+    k = steps.shape[0]
+    rows, cols, vals = [], [], []
+    for axis, comp in enumerate((PX, PY)):
+        row = 3 * np.arange(k) + 1 + axis
+        rows += [row, row]
+        cols += [STATE_DIM * (steps - 1) + comp, STATE_DIM * (np.minimum(steps + 1, T) - 1) + comp]
+        vals += [1.0 - alpha, alpha]
+    G = sp.csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * k, STATE_DIM * T)
+    )
+    G.sum_duplicates()
+    h = np.column_stack([radii, centres]).ravel()
+    return Block(platform, "soc", G, h, dim=3, times=steps)

@@ -98,18 +98,14 @@ class SmoothingModel:
     weights: np.ndarray
 
 
-def smoothing_model(
-    lengths: np.ndarray, steps: int, dt: float, radii: np.ndarray, smoothing: float
-) -> SmoothingModel:
-    """The smoothing rule of the module notes for routes of ``lengths`` flown in ``steps`` steps.
-
-    Idle platforms (length 0) take weight 1; they hold their start.
-    """
+def smoothing_model(speeds: np.ndarray, dt: float, radii: np.ndarray, smoothing: float) -> SmoothingModel:
+    """The smoothing rule of the module notes for platforms flying their routes at ``speeds`` (length
+    per second; 0 for an idle platform, which takes weight 1 and holds its start)."""
     if not (smoothing > 0 and np.isfinite(smoothing)):
         raise ConfigError(f"smoothing: expected a positive number, got {smoothing!r}.")
     scale = float(np.median(radii))
     turn = smoothing * scale
-    speed = np.asarray(lengths, dtype=float) / max(steps * dt, 1e-300)  # per second
+    speed = np.asarray(speeds, dtype=float)
     moving = speed > 0
     tau = np.full(speed.shape, np.inf)
     tau[moving] = np.maximum(turn / speed[moving], MIN_TAU_STEPS * dt)
@@ -156,3 +152,17 @@ def visit_steps(t_real: np.ndarray, T: int, apart: np.ndarray) -> np.ndarray:
             "lengthen the horizon."
         )
     return t
+
+
+#: Share of the speed limit a route is planned to be flown at: room for the smoother to round corners.
+CRUISE_SHARE = 0.95
+
+
+def route_budgets(horizon: int, reserve: int, dt: float, vmax: np.ndarray) -> np.ndarray:
+    """``(M,)`` the longest route each platform can fly in the horizon with the speed profile (from
+    rest, at :data:`CRUISE_SHARE` of its speed limit ``vmax``, to rest when ``reserve`` steps are kept
+    at the end); ``inf`` without a limit."""
+    steps = max(horizon - reserve, 1)
+    ramp = ramp_steps(horizon, steps)
+    flying = steps - 0.5 * (ramp + (ramp if reserve else 0))
+    return CRUISE_SHARE * np.asarray(vmax, dtype=float) * dt * flying

@@ -19,14 +19,16 @@ from collections.abc import Sequence
 import numpy as np
 
 from pmht_opt.constraints.base import Constraint, ConstraintContext
+from pmht_opt.constraints.motion import SpeedLimit
 from pmht_opt.constraints.terminal import Terminal
-from pmht_opt.exceptions import SolverError
+from pmht_opt.exceptions import InfeasibleError, SolverError
 from pmht_opt.geometry import missed_locales
 from pmht_opt.model import POS, VEL
 from pmht_opt.mstep import MStepData, make_mstep, mstep_objective
 from pmht_opt.parallel import usable_cores
 from pmht_opt.planners.coverage.discs import VisitDiscs
 from pmht_opt.planners.coverage.flight import (
+    CRUISE_SHARE,
     SmoothingModel,
     SpeedProfile,
     ramp_steps,
@@ -61,6 +63,16 @@ def terminal_ends(scenario: Scenario, constraints: Sequence[Constraint]) -> tupl
     return ends, found
 
 
+def speed_limits(scenario: Scenario, constraints: Sequence[Constraint]) -> np.ndarray:
+    """``(M,)`` each platform's hard speed limit (the smallest that binds it; ``inf`` without one)."""
+    vmax = np.full(scenario.n_platforms, np.inf)
+    for con in constraints:
+        if isinstance(con, SpeedLimit) and not con.soft:
+            for m in con.applies_to(scenario):
+                vmax[m] = min(vmax[m], float(con.limit_for(m)))
+    return vmax
+
+
 def closed_routes(scenario: Scenario, constraints: Sequence[Constraint]) -> np.ndarray:
     """``(M,)`` whether each platform's route returns to its start (a terminal position there)."""
     ends, _ = terminal_ends(scenario, constraints)
@@ -70,15 +82,18 @@ def closed_routes(scenario: Scenario, constraints: Sequence[Constraint]) -> np.n
 class Track:
     """The motion along each route (synthetic measurements) and the steps at which discs are met."""
 
-    def __init__(self, scenario: Scenario, tours: DiscTours, ends: np.ndarray, at_rest: bool) -> None:
+    def __init__(
+        self, scenario: Scenario, tours: DiscTours, ends: np.ndarray, at_rest: bool, vmax: np.ndarray
+    ) -> None:
         T, N, M = scenario.horizon, scenario.n_locales, scenario.n_platforms
         self.reserve = max(1, T // 10) if at_rest else 0
-        steps = max(T - self.reserve, 1)
-        ramp = ramp_steps(T, steps)
+        available = max(T - self.reserve, 1)
         self.positions = np.repeat(scenario.start_positions[:, None, :], T + 1, axis=1)
         self.visit_time = np.ones(N, dtype=int)
         self.platform = np.zeros(N, dtype=int)
         self.lengths = np.zeros(M)
+        #: Steps each platform takes to fly its route (it holds its last point after them).
+        self.steps = np.full(M, available)
         self.polylines: list[np.ndarray] = []
         t_grid = np.arange(1, T + 1, dtype=float)
         for m in range(M):
@@ -92,7 +107,14 @@ class Track:
             self.platform[route] = m
             if arcs[-1] <= 0.0:
                 continue  # idle: holds its start
-            profile = SpeedProfile(float(arcs[-1]), steps, ramp, ramp if at_rest else 0)
+            steps, ramp_out = available, at_rest
+            if np.isfinite(vmax[m]):  # at its cruise speed under the limit, then at rest
+                ramp = ramp_steps(T, available)
+                need = arcs[-1] / (CRUISE_SHARE * vmax[m] * scenario.dt) + ramp
+                steps, ramp_out = int(min(available, np.ceil(need))), True
+            self.steps[m] = steps
+            ramp = ramp_steps(T, steps)
+            profile = SpeedProfile(float(arcs[-1]), steps, ramp, ramp if ramp_out else 0)
             along = profile.arc(t_grid)
             self.positions[m, 1:] = np.column_stack(
                 [np.interp(along, arcs, poly[:, 0]), np.interp(along, arcs, poly[:, 1])]
@@ -147,9 +169,10 @@ def fly(
     """
     t0 = time.perf_counter()
     ends, at_rest = terminal_ends(scenario, settings.constraints)
-    track = Track(scenario, tours, ends, at_rest)
+    track = Track(scenario, tours, ends, at_rest, speed_limits(scenario, settings.constraints))
     T, M, N = scenario.horizon, scenario.n_platforms, scenario.n_locales
-    model = smoothing_model(track.lengths, T - track.reserve, scenario.dt, scenario.radii, smoothing)
+    speeds = track.lengths / (track.steps * scenario.dt)
+    model = smoothing_model(speeds, scenario.dt, scenario.radii, smoothing)
     flown = scenario.replace(q=model.q, r=model.r)
     window = max(1, T // WINDOW_FRACTION)
     discs = VisitDiscs(track.platform, track.visit_time, scenario.locales, scenario.radii, window)
@@ -163,7 +186,6 @@ def fly(
     )
     active = tuple(range(len(constraints)))
     try:
-        ctx = ConstraintContext(scenario=flown, states=states, iteration=1)
         for it in range(1, iterations + 1):
             ctx = ConstraintContext(scenario=flown, states=states, iteration=it)
             start = time.perf_counter()
@@ -174,6 +196,15 @@ def fly(
             statuses.append(out.status)
             fallbacks.append(out.fallbacks)
             counts.append(out.iterations)
+    except InfeasibleError as err:
+        # The discs at these routes' points and times are one way to cover the locales, not the only
+        # one: not a proof that the user's constraints cannot be met.
+        raise SolverError(
+            f"the routes found could not be flown within the constraints ({err}); the constraints "
+            "themselves were not shown to be infeasible.",
+            backend=err.backend,
+            status="schedule infeasible",
+        ) from err
     finally:
         mstep.close()
     solver = getattr(mstep, "solver", mstep.name)
@@ -205,7 +236,7 @@ def fly(
         scenario=scenario,
         states=states,
         assignment=track.platform,
-        visit_time=discs.visit_steps(ctx),
+        visit_time=discs.visit_points(states[:, :, POS], T)[0],
         platform_prior=prior,
         history=history,
         converged=False,
@@ -220,6 +251,7 @@ def fly(
             "tour": [p.copy() for p in track.polylines],
             "tour_length": float(track.lengths.sum()),
             "tour_lengths": track.lengths.copy(),
+            "flight_steps": track.steps.copy(),
             "smoothing": {"factor": smoothing, "q": model.q, "r": model.r, "weights": model.weights.tolist()},
         },
     )
@@ -241,4 +273,4 @@ def _objective(
     return float(mstep_objective(scenario.model, states, W, WZ, model.r))
 
 
-__all__ = ["closed_routes", "fly", "terminal_ends"]
+__all__ = ["closed_routes", "fly", "speed_limits", "terminal_ends"]

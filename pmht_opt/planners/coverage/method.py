@@ -20,15 +20,17 @@ from typing import Any
 import numpy as np
 
 from pmht_opt import validation
+from pmht_opt.constraints.feasibility import check_feasible
 from pmht_opt.constraints.visits import VisitAll
-from pmht_opt.exceptions import ConfigError
+from pmht_opt.exceptions import ConfigError, SolverError
 from pmht_opt.planners.base import Planner
-from pmht_opt.planners.coverage.fly import closed_routes, fly
+from pmht_opt.planners.coverage.flight import route_budgets
+from pmht_opt.planners.coverage.fly import closed_routes, fly, speed_limits, terminal_ends
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario
 from pmht_opt.settings import Settings
 from pmht_opt.stopping import AnyOf, Progress, ProgressObserver, StoppingCriterion
-from pmht_opt.tours import DiscProblem, TourSettings, plan_tours
+from pmht_opt.tours import DiscProblem, DiscTours, TourSettings, plan_tours
 from pmht_opt.tours import Progress as TourProgress
 
 #: The tour search's effort options (:class:`~pmht_opt.tours.TourSettings`) a caller may set.
@@ -131,6 +133,9 @@ def plan_cover(
             "already guarantees at its radius; leave it out and give the radius instead."
         )
     sc = scenario if options.radius is None else scenario.replace(coverage_radius=_radius(options.radius))
+    # What can be proven before any search: a disc inside a keep-out zone or outside the area, out of
+    # every platform's reach at its speed limit (InfeasibleError).
+    check_feasible(sc, (*settings.constraints, VisitAll()))
     problem = DiscProblem(
         starts=sc.start_positions,
         centres=sc.locales,
@@ -146,16 +151,34 @@ def plan_cover(
         if callback is not None:
             callback(observed(p))
 
-    tours = plan_tours(
-        problem,
-        search,
-        callback=None if callback is None else report,
-        stop=None if stop is None else (lambda p: bool(stop(observed(p)))),
-    )
+    def search_tours(objective: str) -> DiscTours:
+        return plan_tours(
+            problem,
+            dataclasses.replace(search, objective=objective),
+            callback=None if callback is None else report,
+            stop=None if stop is None else (lambda p: bool(stop(observed(p)))),
+        )
+
+    budgets = _budgets(sc, settings)
+    tours = search_tours(options.objective)
+    objective = options.objective
+    if objective == "distance" and np.any(tours.lengths > budgets):
+        # The shortest routes in total ask one platform for more than it can fly in the horizon at
+        # its speed limit: the routes that finish earliest share the work out.
+        tours, objective = search_tours("time"), "time"
+    long = np.flatnonzero(tours.lengths > budgets)
+    if long.size:
+        m = int(long[0])
+        raise SolverError(
+            f"the routes found need platform {m} to fly {tours.lengths[m]:.4g}, and the horizon of "
+            f"{sc.horizon} steps at its speed limit lets it fly {budgets[m]:.4g} (routes as balanced as "
+            "the search found); lengthen the horizon, raise the limit or add platforms.",
+            backend="tours",
+        )
     dynamic = any(c.dynamic for c in settings.constraints)
     iterations = options.iterations or (DYNAMIC_ITERATIONS if dynamic else ITERATIONS)
     result = fly(sc, tours, settings, options.smoothing, iterations)
-    result.extras.update({"objective": options.objective, "search": tours.info})
+    result.extras.update({"objective": objective, "search": tours.info})
     result.wall_time = time.perf_counter() - t0
     return dataclasses.replace(result, scenario=scenario) if options.radius is None else result
 
@@ -170,3 +193,11 @@ def _radius(radius: Any) -> float | np.ndarray:
     if not good:
         raise ConfigError(f"radius: expected one positive number or one per locale, got {radius!r}.")
     return arr
+
+
+def _budgets(scenario: Scenario, settings: Settings) -> np.ndarray:
+    """``(M,)`` the longest route each platform can fly under the user's speed limits."""
+    _, at_rest = terminal_ends(scenario, settings.constraints)
+    reserve = max(1, scenario.horizon // 10) if at_rest else 0
+    vmax = speed_limits(scenario, settings.constraints)
+    return route_budgets(scenario.horizon, reserve, scenario.dt, vmax)
