@@ -106,6 +106,7 @@ def report(result: PlanResult, mission: Mission) -> None:
         ("iterations", f"{m['iterations']}" + (" (converged)" if m["converged"] else "")),
         ("annealing", m["anneal"]),
         ("total distance", f"{m['total_distance']:.2f}{u}"),
+        ("mission time (last arrival)", f"{m['mission_time']:.1f} s" + _objective(result)),
         (f"coverage within {describe_radius(m['coverage_radius'])}{u}", f"{m['coverage']:.1%}"),
         ("mean / max miss distance", f"{m['mean_miss_distance']:.3f} / {m['max_miss_distance']:.3f}{u}"),
         ("locales per platform", " ".join(str(v) for v in m["locales_per_platform"])),
@@ -128,6 +129,12 @@ def report(result: PlanResult, mission: Mission) -> None:
     width = max(len(k) for k, _ in rows)
     for key, value in rows:
         print(f"{key:<{width}}  {value}")
+
+
+def _objective(result: PlanResult) -> str:
+    """`` (objective ...)`` for a plan whose planner chose its routes by an objective."""
+    objective = result.extras.get("objective")
+    return f" (routes for {objective})" if objective else ""
 
 
 def demo(args: argparse.Namespace) -> int:

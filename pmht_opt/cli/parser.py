@@ -92,6 +92,13 @@ def _add_planner_options(p: argparse.ArgumentParser, mission: bool) -> None:
         help="coverage: the sensor radius every locale must be within; smoothed: the visit radius "
         "(default: the mission's coverage_radius)",
     )
+    p.add_argument(
+        "--objective",
+        choices=["distance", "time"],
+        default=None,
+        help="coverage, smoothed: the shortest routes in total (distance) or the earliest finish, the "
+        "longest route as short as can be (time) (default: the mission's, else distance)",
+    )
     if mission:  # demo's --seed is the scenario's
         p.add_argument(
             "--seed", type=int, default=None, help="seed of the planner's random choices (default: 0)"

@@ -29,6 +29,7 @@ OWN: dict[str, dict[str, str]] = {
     "ordering": {"smoothed": "orderer"},
     "update_time_prior": {"pmht": "update_time_prior"},
     "anneal": {"pmht": "anneal"},
+    "objective": {"coverage": "objective", "smoothed": "objective"},
 }
 
 
@@ -66,7 +67,7 @@ def planner_settings(args: argparse.Namespace, base: PlannerSettings) -> Planner
 def _own(args: argparse.Namespace) -> dict[str, Any]:
     """The planners' own options given on the command line, by option name."""
     out: dict[str, Any] = {}
-    for option in ("radius", "ordering"):
+    for option in ("radius", "ordering", "objective"):
         if getattr(args, option, None) is not None:
             out[option] = getattr(args, option)
     if getattr(args, "update_time_prior", None):

@@ -28,6 +28,8 @@ def order_mission(mission: Mission) -> TourResult:
     """
     s = check_mission(mission).planner
     method = s.options.get("orderer", "pyvrp")
+    if method == "tours":  # the smoothed planner's own: the `order` command uses PyVRP's instead
+        method = "pyvrp"
     options: dict[str, Any] = dict(s.options.get("order_options", {}))
     if method in ("ga", "pyvrp") and "seed" in s.shared:
         options.setdefault("seed", s.shared["seed"])
@@ -54,10 +56,6 @@ def plan_mission(
     options = s.planner_options()
     if snapshots:
         options["snapshots"] = tuple(snapshots)
-    if s.method == "smoothed" and "tour" not in options:
-        options["tour"] = order_mission(mission)
-        options.pop("orderer", None)
-        options.pop("order_options", None)
     return plan(
         mission.scenario,
         s.method,

@@ -11,6 +11,7 @@ ordered, so the returned paths pass the locales in tour order, guaranteed.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -25,6 +26,7 @@ from pmht_opt.exceptions import ConfigError
 from pmht_opt.ordering import TourResult, check_routes, order_locales
 from pmht_opt.planners.base import Planner, refuse_ignored
 from pmht_opt.planners.pmht import observing, with_progress
+from pmht_opt.planners.routes import closed_routes, route_budgets
 from pmht_opt.planners.windows import SPLITS, TourVisits, polyline_start, sub_batches
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario
@@ -37,6 +39,7 @@ from pmht_opt.stopping import (
     StoppingCriterion,
     iteration_limit,
 )
+from pmht_opt.tours import DiscProblem, TourSettings, plan_tours
 
 #: When :func:`plan_smoothed` stops by default: the tour fixes the assignment, so once the visits are
 #: at full strength the paths only polish; a position change below 3e-4 of the area for three
@@ -155,7 +158,7 @@ def smooth_tour(
     radius: float | np.ndarray = (
         scenario.coverage_radius if visit_radius is None else positive_number("visit_radius", visit_radius)
     )
-    windows = sub_batches(scenario, routes, split)
+    windows = sub_batches(scenario, routes, split, closed=closed_routes(scenario, settings.constraints))
     N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon
     platform = np.empty(N, dtype=int)
     for m, route in enumerate(routes):
@@ -201,10 +204,17 @@ class SmoothedOptions:
         The visiting order: a :class:`~pmht_opt.ordering.TourResult` or one sequence of locale indices
         per platform; ``None`` (default) orders the locales with ``orderer``.
     orderer
-        The ordering method when no tour is given (:func:`~pmht_opt.order_locales`), run with the
-        settings' seed.
+        The ordering when no tour is given: ``"tours"`` (default: the coverage planner's tour engine,
+        :mod:`pmht_opt.tours`, through the locales' visit discs) or a method of
+        :func:`~pmht_opt.order_locales` (``"pyvrp"``, ``"ortools"``, ``"ga"``), run with the settings'
+        seed. Routes are closed where the mission returns to base.
     order_options
-        That method's own options (e.g. ``{"closed": True}``).
+        That method's own options (for ``"tours"``: :class:`~pmht_opt.tours.TourSettings`' effort).
+    objective
+        ``"distance"`` (default: the shortest routes in total) or ``"time"`` (the longest route as
+        short as can be: the earliest finish; ``"tours"`` only). When the shortest routes ask a
+        platform for more than its speed limit lets it fly in the horizon, ``"tours"`` searches the
+        routes that finish earliest instead.
     visit_radius
         Each locale is passed within this distance, at a step inside its sub-batch; default: the
         scenario's coverage radius.
@@ -218,10 +228,11 @@ class SmoothedOptions:
     """
 
     tour: Any = field(default=None, compare=False)
-    orderer: str = "pyvrp"
+    orderer: str = "tours"
     order_options: dict[str, Any] = field(default_factory=dict)
+    objective: str = "distance"
     visit_radius: float | None = None
-    split: str = "equal"
+    split: str = "distance"
     sides: int = DEFAULT_SIDES
     snapshots: tuple[int, ...] = ()
 
@@ -232,6 +243,10 @@ class SmoothedOptions:
             positive_number("visit_radius", self.visit_radius)
         if not isinstance(self.order_options, dict):
             raise ConfigError(f"order_options: expected a dict of options, got {self.order_options!r}.")
+        if self.objective not in ("distance", "time"):
+            raise ConfigError(f"objective: expected 'distance' or 'time', got {self.objective!r}.")
+        if self.orderer != "tours" and self.objective != "distance":
+            raise ConfigError("objective: 'time' needs orderer='tours' (the others minimise the total).")
         validation.integers("snapshots", self.snapshots, ConfigError, 0)
 
 
@@ -254,11 +269,12 @@ class SmoothedPlanner(Planner):
         stop: StoppingCriterion,
         callback: ProgressObserver | None,
     ) -> PlanResult:
-        tour = options.tour
-        if tour is None:
-            seeded = {"seed": settings.seed} if options.orderer in ("ga", "pyvrp") else {}
-            tour = order_locales(scenario, options.orderer, **{**seeded, **options.order_options})
-        return smooth_tour(
+        objective = None
+        if options.tour is not None:
+            tour = options.tour
+        else:
+            tour, objective = order_for(scenario, settings, options)
+        result = smooth_tour(
             scenario,
             tour,
             settings,
@@ -269,3 +285,27 @@ class SmoothedPlanner(Planner):
             snapshots=tuple(options.snapshots),
             callbacks=observing(None, callback),
         )
+        if objective is not None:
+            result.extras["objective"] = objective
+        return result
+
+
+def order_for(scenario: Scenario, settings: Settings, options: SmoothedOptions) -> tuple[Any, str]:
+    """The smoothed planner's visiting order when none is given (:class:`SmoothedOptions`), and the
+    objective its routes were chosen by."""
+    closed = closed_routes(scenario, settings.constraints)
+    if options.orderer != "tours":
+        seeded = {"seed": settings.seed} if options.orderer in ("ga", "pyvrp") else {}
+        closing = {"closed": True} if closed.all() else {}
+        tour = order_locales(scenario, options.orderer, **{**seeded, **closing, **options.order_options})
+        return tour, "distance"
+    given = options.visit_radius
+    radius = scenario.radii if given is None else np.full(scenario.n_locales, float(given))
+    problem = DiscProblem(scenario.start_positions, scenario.locales, radius, closed=closed)
+    search = TourSettings(seed=settings.seed, objective=options.objective, **options.order_options)
+    tours = plan_tours(problem, search)
+    budgets = route_budgets(scenario, settings.constraints)
+    objective = options.objective
+    if objective == "distance" and np.any(tours.lengths > budgets):
+        tours, objective = plan_tours(problem, dataclasses.replace(search, objective="time")), "time"
+    return [np.asarray(r, dtype=np.intp) for r in tours.routes], objective

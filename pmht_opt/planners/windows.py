@@ -26,16 +26,25 @@ SPLITS = ("equal", "distance")
 VISIT_BLOCK = 1 << 19
 
 
-def sub_batches(scenario: Scenario, routes: Sequence[np.ndarray], split: str = "equal") -> np.ndarray:
+def sub_batches(
+    scenario: Scenario,
+    routes: Sequence[np.ndarray],
+    split: str = "equal",
+    closed: Sequence[bool] | np.ndarray | None = None,
+) -> np.ndarray:
     """``(N, 2)`` first and last time step (inclusive, ``1..T``) of each locale's sub-batch.
 
     ``"equal"`` (the paper) gives every locale of a route the same number of steps; ``"distance"``
     makes each window proportional to the leg that ends at the locale (start to first locale, then
-    consecutive locales), so a long leg gets more time.
+    consecutive locales), so a long leg gets more time. A route that returns to its start
+    (``closed[m]``) keeps time for the leg home after its last window: the share of the horizon that
+    leg's length has of the whole route (under ``"equal"``, the share of one more leg), so the path
+    has the time to get home.
     """
     if split not in SPLITS:
         raise ConfigError(f"split: expected one of {SPLITS}, got {split!r}.")
     T = scenario.horizon
+    home = np.zeros(scenario.n_platforms, dtype=bool) if closed is None else np.asarray(closed, dtype=bool)
     out = np.zeros((scenario.n_locales, 2), dtype=int)
     for m, route in enumerate(routes):
         L = len(route)
@@ -43,16 +52,20 @@ def sub_batches(scenario: Scenario, routes: Sequence[np.ndarray], split: str = "
             continue
         if L > T:
             raise ConfigError(f"platform {m} has {L} locales but the horizon has only {T} steps.")
+        start = scenario.start_positions[m][None, :]
         if split == "equal":
-            share = np.ones(L)
+            share = np.ones(L + 1)
         else:
-            pts = np.vstack([scenario.start_positions[m][None, :], scenario.locales[route]])
+            pts = np.vstack([start, scenario.locales[route], start])
             share = np.hypot(*np.diff(pts, axis=0).T) + 1e-9
+        if not home[m]:
+            share = share[:L]
         edges = np.concatenate([[0.0], np.cumsum(share)]) / share.sum() * T
-        bounds = np.round(edges).astype(int)
+        bounds = np.round(edges[: L + 1]).astype(int)
+        last = T - 1 if home[m] and L < T else T  # a closed route keeps a step at least for home
         # Every window keeps at least one step.
         for k in range(1, L + 1):
-            bounds[k] = min(max(bounds[k], bounds[k - 1] + 1), T - (L - k))
+            bounds[k] = min(max(bounds[k], bounds[k - 1] + 1), last - (L - k))
         out[route, 0] = bounds[:-1] + 1
         out[route, 1] = bounds[1:]
     return out

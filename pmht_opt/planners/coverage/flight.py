@@ -36,8 +36,6 @@ import numpy as np
 from pmht_opt import validation
 from pmht_opt.exceptions import ConfigError
 
-#: The speed ramps up from rest over ``T // RAMP_FRACTION`` steps (and down before a terminal point).
-RAMP_FRACTION = 20
 #: The shortest time constant used, in steps: smoothing finer than the sampling has nothing to do.
 MIN_TAU_STEPS = 0.5
 #: The longest, in steps (a slow platform's): beyond it the smoother only lags further behind.
@@ -124,11 +122,6 @@ def smoothing_model(speeds: np.ndarray, dt: float, radii: np.ndarray, smoothing:
     return SmoothingModel(q=q, r=r, weights=weights)
 
 
-def ramp_steps(horizon: int, steps: int) -> int:
-    """Steps over which a platform speeds up from rest (and slows down to it)."""
-    return min(max(horizon // RAMP_FRACTION, 1), max(steps // 3, 0))
-
-
 def visit_steps(t_real: np.ndarray, T: int, apart: np.ndarray) -> np.ndarray:
     """Steps ``1..T`` nearest to the times ``t_real`` (ascending) at which the visit points are reached.
 
@@ -152,17 +145,3 @@ def visit_steps(t_real: np.ndarray, T: int, apart: np.ndarray) -> np.ndarray:
             "lengthen the horizon."
         )
     return t
-
-
-#: Share of the speed limit a route is planned to be flown at: room for the smoother to round corners.
-CRUISE_SHARE = 0.95
-
-
-def route_budgets(horizon: int, reserve: int, dt: float, vmax: np.ndarray) -> np.ndarray:
-    """``(M,)`` the longest route each platform can fly in the horizon with the speed profile (from
-    rest, at :data:`CRUISE_SHARE` of its speed limit ``vmax``, to rest when ``reserve`` steps are kept
-    at the end); ``inf`` without a limit."""
-    steps = max(horizon - reserve, 1)
-    ramp = ramp_steps(horizon, steps)
-    flying = steps - 0.5 * (ramp + (ramp if reserve else 0))
-    return CRUISE_SHARE * np.asarray(vmax, dtype=float) * dt * flying

@@ -14,27 +14,18 @@ checks each answer against the exact smoother; the returned plan is verified on 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
 
 import numpy as np
 
-from pmht_opt.constraints.base import Constraint, ConstraintContext
-from pmht_opt.constraints.motion import SpeedLimit
-from pmht_opt.constraints.terminal import Terminal
+from pmht_opt.constraints.base import ConstraintContext
 from pmht_opt.exceptions import InfeasibleError, SolverError
 from pmht_opt.geometry import missed_locales
 from pmht_opt.model import POS, VEL
 from pmht_opt.mstep import MStepData, make_mstep, mstep_objective
 from pmht_opt.parallel import usable_cores
 from pmht_opt.planners.coverage.discs import VisitDiscs
-from pmht_opt.planners.coverage.flight import (
-    CRUISE_SHARE,
-    SmoothingModel,
-    SpeedProfile,
-    ramp_steps,
-    smoothing_model,
-    visit_steps,
-)
+from pmht_opt.planners.coverage.flight import SmoothingModel, SpeedProfile, smoothing_model, visit_steps
+from pmht_opt.planners.routes import CRUISE_SHARE, ramp_steps, speed_limits, terminal_ends
 from pmht_opt.result import IterationHistory, PlanResult
 from pmht_opt.scenario import Scenario
 from pmht_opt.settings import Settings
@@ -45,38 +36,6 @@ from pmht_opt.verify import verify_plan
 ON_POLYLINE = 1e-9
 #: A locale's disc may be met up to ``T // WINDOW_FRACTION`` steps from where the tour meets it.
 WINDOW_FRACTION = 25
-
-
-def terminal_ends(scenario: Scenario, constraints: Sequence[Constraint]) -> tuple[np.ndarray, bool]:
-    """Final positions ``(M, 2)`` the user's :class:`~pmht_opt.Terminal` constraints ask for (NaN:
-    free), and whether any terminal condition asks the platforms to end at rest or in place."""
-    ends = np.full((scenario.n_platforms, 2), np.nan)
-    found = False
-    for con in constraints:
-        if not isinstance(con, Terminal):
-            continue
-        found = True
-        targets = con.targets(scenario)
-        if targets is not None:
-            for m in con.applies_to(scenario):
-                ends[m] = targets[0 if targets.shape[0] == 1 else m]
-    return ends, found
-
-
-def speed_limits(scenario: Scenario, constraints: Sequence[Constraint]) -> np.ndarray:
-    """``(M,)`` each platform's hard speed limit (the smallest that binds it; ``inf`` without one)."""
-    vmax = np.full(scenario.n_platforms, np.inf)
-    for con in constraints:
-        if isinstance(con, SpeedLimit) and not con.soft:
-            for m in con.applies_to(scenario):
-                vmax[m] = min(vmax[m], float(con.limit_for(m)))
-    return vmax
-
-
-def closed_routes(scenario: Scenario, constraints: Sequence[Constraint]) -> np.ndarray:
-    """``(M,)`` whether each platform's route returns to its start (a terminal position there)."""
-    ends, _ = terminal_ends(scenario, constraints)
-    return np.all(np.isclose(ends, scenario.start_positions, rtol=0.0, atol=1e-9), axis=1)
 
 
 class Track:
@@ -273,4 +232,4 @@ def _objective(
     return float(mstep_objective(scenario.model, states, W, WZ, model.r))
 
 
-__all__ = ["closed_routes", "fly", "speed_limits", "terminal_ends"]
+__all__ = ["fly"]

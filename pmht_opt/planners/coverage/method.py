@@ -24,8 +24,8 @@ from pmht_opt.constraints.feasibility import check_feasible
 from pmht_opt.constraints.visits import VisitAll
 from pmht_opt.exceptions import ConfigError, SolverError
 from pmht_opt.planners.base import Planner
-from pmht_opt.planners.coverage.flight import route_budgets
-from pmht_opt.planners.coverage.fly import closed_routes, fly, speed_limits, terminal_ends
+from pmht_opt.planners.coverage.fly import fly
+from pmht_opt.planners.routes import closed_routes, route_budgets
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario
 from pmht_opt.settings import Settings
@@ -159,7 +159,7 @@ def plan_cover(
             stop=None if stop is None else (lambda p: bool(stop(observed(p)))),
         )
 
-    budgets = _budgets(sc, settings)
+    budgets = route_budgets(sc, settings.constraints)
     tours = search_tours(options.objective)
     objective = options.objective
     if objective == "distance" and np.any(tours.lengths > budgets):
@@ -193,11 +193,3 @@ def _radius(radius: Any) -> float | np.ndarray:
     if not good:
         raise ConfigError(f"radius: expected one positive number or one per locale, got {radius!r}.")
     return arr
-
-
-def _budgets(scenario: Scenario, settings: Settings) -> np.ndarray:
-    """``(M,)`` the longest route each platform can fly under the user's speed limits."""
-    _, at_rest = terminal_ends(scenario, settings.constraints)
-    reserve = max(1, scenario.horizon // 10) if at_rest else 0
-    vmax = speed_limits(scenario, settings.constraints)
-    return route_budgets(scenario.horizon, reserve, scenario.dt, vmax)
