@@ -25,9 +25,13 @@ from pmht_opt.io.constraints import COMMON, KINDS
 from pmht_opt.io.frame import Frame
 from pmht_opt.io.settings import read_settings
 
+#: The model's q and r given as the library's defaults (a mission without them takes its own, scaled to
+#: its units: tested below).
 BASE = """
 name = "small"
 horizon = 40
+q = 1e-8
+r = 0.01
 locales = [[1.0, 1.0], [3.0, 1.5], [2.0, 3.5], [0.5, 3.0]]
 starts = [[0.5, 0.5], [3.5, 3.5]]
 """
@@ -110,7 +114,8 @@ def test_each_kind_reads_as_the_library_builds_it(tmp_path: Path, kind: str) -> 
     ],
 )
 def test_strings_where_numbers_belong_name_the_field(tmp_path: Path, text: str, field: str) -> None:
-    path = write(tmp_path, text + "\n" + BASE.replace('name = "small"\nhorizon = 40\n', ""))
+    base = BASE.replace('name = "small"\nhorizon = 40\n', "").replace("r = 0.01\n", "")
+    path = write(tmp_path, text + "\n" + base)
     with pytest.raises(ScenarioError) as err:
         load_mission(path)
     assert str(err.value).startswith("m.toml: ") and field in str(err.value)
@@ -335,3 +340,19 @@ def test_settings_defaults_are_the_librarys() -> None:
     assert po.PLANNERS["pmht"].options(s.planner_options()) == po.PLANNERS["pmht"].Options()
     paper = read_settings("planner", {"paper": True}).planner_options()
     assert paper["update_time_prior"] and paper["anneal"].empty
+
+
+def test_a_mission_without_model_settings_takes_them_in_its_own_units() -> None:
+    """r = (rho / 3)^2 and q for a smoother's time constant of a fiftieth of the mission: the paper's
+    values for its scenarios, and the same shape of plan in any units."""
+    one = {"locales": [[1, 1]], "starts": [[0, 0]]}
+    paper = mission_from_dict({**one, "horizon": 500, "coverage_radius": 0.3})
+    assert paper.scenario.r == pytest.approx(0.01) and paper.scenario.q == pytest.approx(1e-8)
+    metres = mission_from_dict(
+        {"locales": [[100, 100]], "starts": [[0, 0]], "horizon": 450, "dt": 2.0, "coverage_radius": 100.0}
+    )
+    assert metres.scenario.r == pytest.approx(100.0**2 / 9)
+    tau = (metres.scenario.r * 2.0 / metres.scenario.q) ** (1 / 6)
+    assert tau == pytest.approx(450 * 2.0 / 50)
+    given = mission_from_dict({**one, "r": 400.0, "coverage_radius": 100.0})
+    assert given.scenario.r == 400.0 and given.scenario.q == pytest.approx(400.0 / 10.0**6)

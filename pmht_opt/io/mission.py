@@ -44,6 +44,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from pmht_opt import validation
 from pmht_opt.constraints.base import Constraint, fitting_constraints
 from pmht_opt.exceptions import ConfigError, PmhtOptError, ScenarioError
@@ -184,12 +186,50 @@ def _read_scenario(data: dict[str, Any], frame: Frame, base: Path) -> tuple[Scen
     for key, read in readers.items():
         if key in data:
             kwargs[key] = read(key, data[key])
+    _model_defaults(kwargs)
     if "bounds" in data:
         bounds = fields.numbers("bounds", data["bounds"], 1)
         if len(bounds) != 4:
             raise ScenarioError(f"bounds: expected [xmin, xmax, ymin, ymax], got {len(bounds)} values.")
         kwargs["bounds"] = tuple(bounds)
     return Scenario(**kwargs), "bounds" not in data
+
+
+#: A mission's default penalty: sigma = a third of the median coverage radius (the paper: 0.3, 0.01).
+SIGMA_PER_RADIUS = 1.0 / 3.0
+#: A mission's default smoothing: the smoother's time constant (r dt / q)^(1/6) is this share of the
+#: mission's duration (the paper: 10 s of 500, from q = 1e-8, r = 0.01).
+TAU_SHARE = 1.0 / 50.0
+
+
+def _model_defaults(kwargs: dict[str, Any]) -> None:
+    """The model's ``r`` and ``q`` of a mission that leaves them out, in the mission's own units.
+
+    ``r`` is ``(rho / 3)^2`` with ``rho`` the median coverage radius (three standard deviations of the
+    penalty are the sensor's footprint); ``q`` makes the smoother's time constant
+    ``(r dt / q)^(1/6)`` a fiftieth of the mission's duration ``T dt``. Both give the paper's values
+    for its scenarios (``rho = 0.3``, ``T = 500``, ``dt = 1``: ``r = 0.01``, ``q = 1e-8``), and both
+    follow the mission's units of length and time, so a mission in metres plans without model
+    settings (docs/model.md section 12).
+    """
+    numbers = [kwargs.get(k) for k in ("coverage_radius", "r", "dt", "horizon") if k in kwargs]
+    if not all(validation.is_real(v) or isinstance(v, list) for v in numbers):
+        return  # a field of the wrong type: the scenario names it
+    try:
+        radius = float(np.median(np.atleast_1d(np.asarray(kwargs.get("coverage_radius", 0.3), dtype=float))))
+    except (TypeError, ValueError):
+        return
+    if not (np.isfinite(radius) and radius > 0):
+        return
+    if "r" not in kwargs:
+        lo, hi = validation.R_RANGE
+        kwargs["r"] = float(min(max((SIGMA_PER_RADIUS * radius) ** 2, lo), hi))
+    if "q" not in kwargs:
+        dt = float(kwargs.get("dt", 1.0))
+        horizon = float(kwargs.get("horizon", 500))
+        lo, hi = validation.Q_RANGE
+        q = kwargs["r"] * dt / (TAU_SHARE * horizon * dt) ** 6
+        kwargs["q"] = float(min(max(q, lo), hi))
 
 
 def _read_geo(data: Any) -> tuple[GeoOrigin, float]:

@@ -158,7 +158,8 @@ def smooth_tour(
     radius: float | np.ndarray = (
         scenario.coverage_radius if visit_radius is None else positive_number("visit_radius", visit_radius)
     )
-    windows = sub_batches(scenario, routes, split, closed=closed_routes(scenario, settings.constraints))
+    closed = closed_routes(scenario, settings.constraints)
+    windows = sub_batches(scenario, routes, split, closed=closed)
     N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon
     platform = np.empty(N, dtype=int)
     for m, route in enumerate(routes):
@@ -181,7 +182,7 @@ def smooth_tour(
         run_cfg,
         time_prior=time_prior,
         platform_prior=platform_prior,
-        initial_paths=polyline_start(scenario, routes, windows),
+        initial_paths=polyline_start(scenario, routes, windows, split, closed),
         callbacks=callbacks,
     ) as run:
         result = run.run()

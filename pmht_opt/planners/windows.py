@@ -128,17 +128,28 @@ class TourVisits(VisitAll):
         return report
 
 
-def polyline_start(scenario: Scenario, routes: list[np.ndarray], windows: np.ndarray) -> np.ndarray:
-    """Paths along the tour: straight legs reaching each locale at the middle of its sub-batch."""
+def polyline_start(
+    scenario: Scenario,
+    routes: list[np.ndarray],
+    windows: np.ndarray,
+    split: str = "equal",
+    closed: Sequence[bool] | np.ndarray | None = None,
+) -> np.ndarray:
+    """Paths along the tour: straight legs reaching each locale in its sub-batch (at its middle for
+    ``"equal"``, at its end for ``"distance"``, whose windows are the legs that end there), and home at
+    the horizon for a closed route."""
     M, T = scenario.n_platforms, scenario.horizon
     x0 = scenario.initial_states
     paths = np.repeat(x0[:, None, :], T + 1, axis=1)
     t_grid = np.arange(T + 1, dtype=float)
+    home = np.zeros(M, dtype=bool) if closed is None else np.asarray(closed, dtype=bool)
     for m, route in enumerate(routes):
         if len(route) == 0:
             continue
-        knots_t = np.concatenate([[0.0], windows[route].mean(axis=1), [float(T)]])
-        pts = np.vstack([scenario.start_positions[m], scenario.locales[route], scenario.locales[route[-1]]])
+        at = windows[route, 1].astype(float) if split == "distance" else windows[route].mean(axis=1)
+        last = scenario.start_positions[m] if home[m] else scenario.locales[route[-1]]
+        knots_t = np.concatenate([[0.0], at, [float(T)]])
+        pts = np.vstack([scenario.start_positions[m], scenario.locales[route], last])
         pos = np.stack([np.interp(t_grid, knots_t, pts[:, k]) for k in range(2)], axis=1)
         vel = np.gradient(pos, scenario.dt, axis=0)
         body = paths[m, 1:]  # a view
