@@ -85,6 +85,9 @@ def run_case(row: dict[str, str], base: Path, seeds: list[int]) -> dict[str, Any
                 "cpu": cpu,
                 "iterations": tours.info["iterations"],
                 "turns": len(tours.turns[0]),
+                # Length / BKS after each stage: polyline through the centres in PyVRP's order, its
+                # cone program, the first local search, ruin and recreate.
+                "stages": {k: v / bks for k, v in tours.info["stages"].items()},
                 # Largest (distance to polyline - radius) / radius: <= 1e-9 is covered.
                 "worst_coverage": float(np.max(gap / radii)) if len(radii) else 0.0,
             }
