@@ -359,3 +359,24 @@ def test_the_readme_quick_start_commands() -> None:
     assert "Python 3.11 or newer" in text and 'pip install ".[ortools]"' in text
     ignored = (Path(__file__).resolve().parents[1] / ".gitignore").read_text().split()
     assert "/pmht-demo-*.png" in ignored and "/out/" in ignored
+
+
+def test_messages_speak_in_the_command_lines_words() -> None:
+    """A library hint written for Python callers reaches a command-line user as flags and file keys."""
+    said = cli.cli_words(
+        "try solver='cvxpy' or 'osqp', or more work for OSQP (solver_settings={'mstep_work_limit': None}),"
+        " or soft=True on the tightest constraint; leave it out and give the radius instead."
+    )
+    assert "--solver cvxpy or --solver osqp" in said and "solver=" not in said
+    assert "soft = true in the constraint's table" in said and "--radius" in said
+    assert "mstep_work_limit in the mission's [planner] solver_settings" in said
+
+
+def test_an_ordering_figure_draws_the_missions_obstacles(tmp_path: Path) -> None:
+    from pmht_opt.plotting import plot_tour
+
+    sc = library_scenario()
+    tour = po.order_locales(sc, "ga", seed=0, iterations=50)
+    plain = plot_tour(tour, tmp_path / "plain.png", sc)
+    zoned = plot_tour(tour, tmp_path / "zoned.png", sc, constraints=[po.CircleObstacle((2.0, 2.0), 0.5)])
+    assert plain.read_bytes() != zoned.read_bytes()

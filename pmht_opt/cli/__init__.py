@@ -18,6 +18,7 @@ as for a process ended by SIGPIPE.
 from __future__ import annotations
 
 import os
+import re
 import sys
 from collections.abc import Sequence
 
@@ -27,6 +28,28 @@ from pmht_opt.exceptions import PmhtOptError
 
 #: Exit statuses.
 EXIT_ERROR, EXIT_INTERRUPTED, EXIT_PIPE = 2, 130, 141
+
+#: The library's words in its messages, and what a user of the command line writes instead: a flag,
+#: or a key of the mission file.
+CLI_WORDS: tuple[tuple[str, str], ...] = (
+    (r"solver='(\w+)' or '(\w+)'", r"--solver \1 or --solver \2"),
+    (r"solver='(\w+)'", r"--solver \1"),
+    (
+        r"solver_settings=\{'mstep_work_limit': None\}",
+        "a larger mstep_work_limit in the mission's [planner] solver_settings",
+    ),
+    (r"pass accept_inaccurate=True", "set accept_inaccurate = true in the mission's [planner]"),
+    (r"soft=True", "soft = true in the constraint's table"),
+    (r"give the radius instead", "give --radius instead"),
+    (r"pass radius=", "give --radius"),
+)
+
+
+def cli_words(message: str) -> str:
+    """``message`` with the library's words replaced by the command line's (:data:`CLI_WORDS`)."""
+    for pattern, replacement in CLI_WORDS:
+        message = re.sub(pattern, replacement, message)
+    return message
 
 
 def _silence_stdout() -> None:
@@ -51,7 +74,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         code: int = args.func(args)
         sys.stdout.flush()
     except PmhtOptError as err:
-        print(f"pmht-opt: error: {err}", file=sys.stderr)
+        print(f"pmht-opt: error: {cli_words(str(err))}", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:
         print("pmht-opt: interrupted.", file=sys.stderr)

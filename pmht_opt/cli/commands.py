@@ -171,7 +171,7 @@ def order(args: argparse.Namespace) -> int:
     if figure is not None:
         from pmht_opt.plotting import plot_tour
 
-        print(f"figure: {plot_tour(tour, figure, sc)}")
+        print(f"figure: {plot_tour(tour, figure, sc, constraints=mission.constraints_for_plan())}")
     if js is not None:
         write_text(js, json.dumps(tour.to_dict()) + "\n")
         print(f"tour: {js}")

@@ -136,14 +136,19 @@ def plot_result(
 
 
 def plot_tour(
-    tour: Any, path: str | Path, scenario: Scenario | None = None, title: str | None = None
+    tour: Any,
+    path: str | Path,
+    scenario: Scenario | None = None,
+    title: str | None = None,
+    constraints: Sequence[Any] = (),
 ) -> Path:
     """Write the figure of a :class:`~pmht_opt.ordering.TourResult` to ``path``: the starts (boxes),
-    locales (crosses, coloured by route) and the routes' legs (closed routes back to their start).
-    ``scenario`` is needed when the tour does not hold the one it was ordered for."""
+    locales (crosses, coloured by route), the routes' legs (closed routes back to their start) and the
+    ``constraints`` (keep-out zones, areas). ``scenario`` is needed when the tour does not hold the one
+    it was ordered for."""
     from pmht_opt.ordering.tour import route_legs
 
     sc = tour.scenario_for(scenario)
     legs = route_legs(sc, tour.routes, tour.closed)
     label = title if title is not None else f"{tour.method}: total distance {tour.total_distance:.2f}"
-    return plot_paths(sc, legs, path, title=label, assignment=tour.assignment)
+    return plot_paths(sc, legs, path, title=label, assignment=tour.assignment, constraints=constraints)

@@ -111,6 +111,9 @@ def animate_iterations(
 
         anim = FuncAnimation(fig, draw, frames=[*frames, *hold], blit=False)
         out = validation.file_path("path", path)
+        # The layout is fixed once, for every frame: fitted to the longest heading (the last
+        # iteration's, with its penalty), so no frame's title is cut off.
+        draw(last)
         fig.tight_layout()
         with validation.writing(out) as part:
             anim.save(part, writer=PillowWriter(fps=fps), dpi=dpi)
