@@ -48,7 +48,17 @@ class WrongAnswerError(SolverError):
 
 
 class InfeasibleError(SolverError):
-    """Hard constraints that no plan can meet; the message names the constraint where it can tell."""
+    """Hard constraints that no plan can meet, proven: the message names the constraints and what the
+    least relaxation that reconciles them needs. Raised only on a proof (a geometric necessary
+    condition, or a feasibility problem over the constraints themselves that needs slack), never
+    because a planner's own choice (a visit schedule, a tour, a linearisation) could not be met."""
+
+
+class ScheduleError(SolverError):
+    """A planner's own choice (the steps at which visits are imposed, a tour, the linearisation of an
+    obstacle at an iterate) that cannot be met together with the constraints, while the constraints
+    themselves were not shown to be infeasible: another choice may meet them. Planners catch it and
+    try other schedules; it reaches the caller only when every one failed, saying so."""
 
 
 class MissingDependencyError(PmhtOptError, ImportError):

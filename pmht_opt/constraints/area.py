@@ -24,6 +24,8 @@ class AreaBounds(Constraint):
     solve.
     """
 
+    exact = True
+
     def __init__(self, xmin: float, xmax: float, ymin: float, ymax: float, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         if not all(is_real(v) for v in (xmin, xmax, ymin, ymax)):

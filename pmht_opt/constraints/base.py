@@ -127,6 +127,10 @@ class Constraint(abc.ABC):
     needs: frozenset[str] = frozenset({"linear"})
     #: Whether :meth:`blocks` depends on the iterate (linearisations, MAP visits).
     dynamic: ClassVar[bool] = False
+    #: Whether its rows *are* the constraint on every path: convex, written whole, neither linearised at
+    #: an iterate nor placed at steps a planner chose (a speed limit, an area, a terminal condition).
+    #: Only such rows can prove that no plan meets the constraints (:mod:`pmht_opt.mstep.diagnosis`).
+    exact: ClassVar[bool] = False
     #: ``None``: imposed from the first iteration; ``k``: from ``k`` iterations after annealing ends.
     warmup: int | None = None
     #: Iterations over which the schedule brings the constraint in (``ConstraintContext.strength``).

@@ -34,6 +34,7 @@ class _NormLimit(Constraint):
     """A bound on the norm of a state pair and of a finite difference of positions (module docstring)."""
 
     needs = frozenset({"soc"})
+    exact = True
     comps: ClassVar[tuple[int, int]] = (VX, VY)
     #: Finite-difference stencil on the positions, ``(offset, coefficient)`` pairs.
     stencil: ClassVar[tuple[tuple[int, float], ...]] = ((0, 1.0), (-1, -1.0))

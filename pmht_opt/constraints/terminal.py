@@ -36,6 +36,8 @@ class Terminal(Constraint):
         :class:`~pmht_opt.constraints.base.Constraint`.
     """
 
+    exact = True
+
     def __init__(
         self,
         velocity: Any = None,

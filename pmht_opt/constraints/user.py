@@ -78,6 +78,8 @@ class CvxpyConstraint(Constraint):
         CvxpyConstraint(lambda v: [v.positions[0][:250, 0] <= 5.0], name="west first")
     """
 
+    exact = True  # the user's own convex constraint, written whole
+
     needs = frozenset({"cvxpy"})
 
     def __init__(

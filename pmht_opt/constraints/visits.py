@@ -29,8 +29,9 @@ def choose_visits(ctx: ConstraintContext, radius: float | np.ndarray) -> tuple[n
     """``(platform (N,), time (N,))`` each locale must be visited at, from ``ctx.estep``.
 
     Each locale takes its MAP ``(platform, time)``, in order of decreasing MAP weight, unless that time
-    clashes with a locale already placed on the same platform (or with its start, at ``t = 0``): two
-    visits clash when the platform
+    clashes with a locale already placed on the same platform, with its start (at ``t = 0``) or with
+    the end of its current path (at ``t = T``: a platform that must be home at the end cannot be far
+    away just before): two visits clash when the platform
     would have to cover the distance between the two discs faster than twice the current path's mean
     speed (two locales further apart than their radii add up to, at the same step, always clash).
     ``radius`` is one number or one per locale. Two locales share a step only if they lie within
@@ -51,6 +52,8 @@ def choose_visits(ctx: ConstraintContext, radius: float | np.ndarray) -> tuple[n
     best = es.max_weight()  # the weight at each locale's MAP (platform, time)
     steps = np.diff(ctx.states[:, :, POS], axis=1)
     speed = np.median(np.hypot(steps[..., 0], steps[..., 1]), axis=1)  # (M,) typical step length
+    ends = ctx.states[:, -1][:, POS]  # (M, 2) where the current paths end
+    T = ctx.states.shape[1] - 1
     N, M = locales.shape[0], starts.shape[0]
     radii = np.broadcast_to(np.asarray(radius, dtype=float), (N,))
     # The visits placed so far on each platform: their locales' coordinates, radii and times, in order.
@@ -64,21 +67,28 @@ def choose_visits(ctx: ConstraintContext, radius: float | np.ndarray) -> tuple[n
         # The start (t = 0) counts as a placed visit, for speed only: a locale 1 unit from the start
         # cannot be met at t = 1.
         start_gap = max(float(np.hypot(*(starts[m] - locales[n]))) - radii[n], 0.0)
+        end_gap = max(float(np.hypot(*(ends[m] - locales[n]))) - radii[n], 0.0)
         vref = 2.0 * max(float(speed[m]), 1e-9)
         apart = np.hypot(placed_xy[m, :k, 0] - locales[n, 0], placed_xy[m, :k, 1] - locales[n, 1])
         reach = placed_r[m, :k] + radii[n]
         gap = np.maximum(apart - reach, 0.0)
         # At one step, discs that barely touch clash too (docstring).
         at_once = ~can_share_step(apart, reach)
-        if t * vref < start_gap or _clash_at(t, placed_t[m, :k], gap, at_once, vref):
+        pinned = t * vref < start_gap or (T - t) * vref < end_gap
+        if pinned or _clash_at(t, placed_t[m, :k], gap, at_once, vref):
             # Most probable first; among equally probable (e.g. underflowed) times, the nearest.
             wn = es.locale_weights(n)[:, m]  # (T,)
             cand = np.arange(1, wn.shape[0] + 1)
             order = cand[np.lexsort((np.abs(cand - t), -wn))]
             tried = order.astype(float)
-            pick = np.flatnonzero(~_clashes(tried, placed_t[m, :k], gap, at_once, start_gap, vref))
-            if pick.size == 0:  # no time the platform can reach comfortably: at least never two at once
-                pick = np.flatnonzero(~_clashes(tried, placed_t[m, :k], gap, at_once, start_gap, None))
+            placed = placed_t[m, :k]
+            pick = np.flatnonzero(~_clashes(tried, placed, gap, at_once, start_gap, vref, (T, end_gap)))
+            if pick.size == 0:  # no time the platform can reach comfortably: at least never two at once,
+                # and not at the end when the path ends away from the locale (a terminal position)
+                free = ~_clashes(tried, placed, gap, at_once, start_gap, None)
+                pick = np.flatnonzero(free & ~((tried >= T) & (end_gap > 0)))
+                if pick.size == 0:
+                    pick = np.flatnonzero(free)
             if pick.size:
                 t = int(order[pick[0]])
         time[n] = t
@@ -103,18 +113,20 @@ def _clashes(
     at_once: np.ndarray,
     start_gap: float,
     vref: float | None,
+    end: tuple[int, float] = (0, 0.0),
 ) -> np.ndarray:
     """Whether a visit at each of the times ``t`` clashes with the platform's visits placed at times
-    ``others`` (their discs ``gap`` apart, beyond reach at one step where ``at_once``) or with its start
-    (``start_gap`` away, at ``t = 0``): at one step with a disc it cannot meet at once, or, with a
-    reference speed ``vref``, farther than ``vref`` covers in the steps between (``None``: the
-    speed is not checked, nor the start)."""
+    ``others`` (their discs ``gap`` apart, beyond reach at one step where ``at_once``), with its start
+    (``start_gap`` away, at ``t = 0``) or with its end (``end = (T, end_gap)``): at one step with a
+    disc it cannot meet at once, or, with a reference speed ``vref``, farther than ``vref`` covers in
+    the steps between (``None``: the speed is not checked, nor the start and end)."""
     dt = np.abs(t[:, None] - others[None, :])
     same = (dt == 0) & ((gap > 0) | at_once)
     if vref is None:
         return np.any(same, axis=1)
     same |= dt * vref < gap
-    return np.any(same, axis=1) | (np.abs(t) * vref < start_gap)
+    horizon, end_gap = end
+    return np.any(same, axis=1) | (np.abs(t) * vref < start_gap) | ((horizon - t) * vref < end_gap)
 
 
 def _visit_radius(name: str, radius: Any) -> float | np.ndarray | None:

@@ -18,7 +18,7 @@ import scipy.sparse as sp
 
 import solvers
 from pmht_opt.constraints.user import CvxpyConstraint, CvxpyVariables
-from pmht_opt.exceptions import ConfigError, InfeasibleError, SolverError
+from pmht_opt.exceptions import ConfigError, InfeasibleError, ScheduleError, SolverError
 from pmht_opt.model import PX, PY, STATE_DIM
 from pmht_opt.mstep.base import MStep, MStepData, MStepOutput, check_cvxpy_solver
 from pmht_opt.mstep.formulation import QPLayout, dynamics_rows
@@ -125,13 +125,22 @@ class JointCvxpyMStep(MStep):
         failed = not sol.usable(self.accept_inaccurate) and sol.status not in _LIMITS
         verdict = self._probe(problem) if failed and sol.status not in solvers.INFEASIBLE else sol
         if verdict is not None and verdict.status in solvers.INFEASIBLE and self.constraints:
-            names = sorted({c.name for c in self.constraints if not c.soft})
-            raise InfeasibleError(
-                f"{sol.backend}: the constraints {', '.join(names)} cannot all be met (status "
-                f"{verdict.raw_status}); the clarabel backend names the platform and time steps. Relax "
-                "them or pass soft=True.",
+            hard = [c for c in self.constraints if not c.soft]
+            names = ", ".join(sorted({c.name for c in hard}))
+            if all(c.exact for c in hard):  # every row is a constraint itself: a proof
+                raise InfeasibleError(
+                    f"{sol.backend}: the constraints {names} cannot all be met by any path (status "
+                    f"{verdict.raw_status}); the clarabel backend names the platform and time steps. Relax "
+                    "them or pass soft=True.",
+                    backend=sol.backend,
+                    status=verdict.raw_status,
+                )
+            raise ScheduleError(
+                f"{sol.backend}: the constraints {names} cannot all be met where this iteration imposes "
+                f"them (status {verdict.raw_status}); the constraints themselves were not shown to be "
+                "infeasible: other steps may meet them.",
                 backend=sol.backend,
-                status=verdict.raw_status,
+                status="schedule infeasible",
             )
         check_solution(sol, self.accept_inaccurate)
         assert sol.x is not None

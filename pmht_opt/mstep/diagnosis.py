@@ -15,8 +15,16 @@ inaccurate names culprits only where the slack is far above its reduced toleranc
 (:data:`INACCURATE_CULPRIT_SLACK`). The phase-one problem measures positions from the platform's start
 (:func:`~pmht_opt.mstep.formulation.start_frame`).
 
-The phase-one problem is solved by Clarabel where it is installed (an interior-point solve of a
-second-order cone program), else by the failing backend.
+Slack says the rows cannot all be met, but not yet that the *constraints* cannot: some rows are a
+planner's choices (visits imposed at the steps the EM or a tour chose, obstacles linearised at an
+iterate). Only the rows that are the constraints themselves can prove it (:func:`_proof`): if their
+own phase-one problem needs slack, no path meets them (:class:`~pmht_opt.exceptions.InfeasibleError`);
+otherwise the failure is the schedule's (:class:`~pmht_opt.exceptions.ScheduleError`), and the
+planner may try another.
+
+The phase-one problems are solved by Clarabel (an interior-point solve of a second-order cone
+program, the cones exact whatever the failing backend takes), so every backend gets the same verdict
+on the same rows.
 """
 
 from __future__ import annotations
@@ -25,7 +33,7 @@ import numpy as np
 import scipy.sparse as sp
 
 import solvers
-from pmht_opt.exceptions import InfeasibleError, PmhtOptError, SolverError
+from pmht_opt.exceptions import InfeasibleError, PmhtOptError, ScheduleError, SolverError
 from pmht_opt.model import MotionModel
 from pmht_opt.mstep.formulation import QPLayout, dynamics_rows, in_increments, start_frame
 from pmht_opt.mstep.rows import PlatformRows, SlackOwner, assemble
@@ -87,20 +95,12 @@ def diagnose(
     except solvers.QPError:
         probe = None
     if probe is None or not probe.usable(True):
-        if sol.status in solvers.INFEASIBLE:
-            return InfeasibleError(
-                f"{sol.backend}: {where} (status {sol.raw_status}).", sol.backend, sol.raw_status
-            )
         return SolverError(
             f"{sol.backend}: the M-step solve failed (platform {platform}) with status {sol.raw_status!r}.",
             sol.backend,
             sol.raw_status,
         )
-    culprits: dict[str, list[tuple[int, str | None, float]]] = {}
-    threshold = CULPRIT_SLACK if probe.ok else INACCURATE_CULPRIT_SLACK
-    for value, owner in zip(slacks, owners, strict=True):
-        if value > threshold:
-            culprits.setdefault(owner.constraint, []).append((owner.time, owner.label, float(value)))
+    culprits = _culprits(slacks, owners, CULPRIT_SLACK if probe.ok else INACCURATE_CULPRIT_SLACK)
     if not culprits:
         others = "'cvxpy' or 'osqp'" if sol.backend == "clarabel" else "'clarabel'"
         more = ""
@@ -113,6 +113,33 @@ def diagnose(
             sol.backend,
             sol.raw_status,
         )
+    proof = _proof(model, x0, horizon, platform, rows, session_class)
+    if proof is not None:
+        message = f"{sol.backend}: {proof}. Relax them or pass soft=True."
+        return InfeasibleError(message, sol.backend, sol.raw_status)
+    chosen = sorted({i.name for i in rows.items if not i.soft and not i.exact})
+    return ScheduleError(
+        f"{sol.backend}: {where} where this iteration imposes them (the steps of {', '.join(chosen)}, chosen "
+        f"by the planner); the least relaxation needs {_parts(platform, culprits)}. The constraints "
+        "themselves were not shown to be infeasible: other steps may meet them.",
+        sol.backend,
+        "schedule infeasible",
+    )
+
+
+def _culprits(
+    slacks: np.ndarray, owners: list[SlackOwner], threshold: float
+) -> dict[str, list[tuple[int, str | None, float]]]:
+    """The slacks above ``threshold``, by constraint: ``(time, label, slack)``."""
+    out: dict[str, list[tuple[int, str | None, float]]] = {}
+    for value, owner in zip(slacks, owners, strict=True):
+        if value > threshold:
+            out.setdefault(owner.constraint, []).append((owner.time, owner.label, float(value)))
+    return out
+
+
+def _parts(platform: int, culprits: dict[str, list[tuple[int, str | None, float]]]) -> str:
+    """Where each culprit's slack lands, worst first, in words."""
     parts = []
     for name, hits in sorted(culprits.items(), key=lambda kv: -max(h[2] for h in kv[1])):
         times = sorted({h[0] for h in hits})
@@ -121,10 +148,39 @@ def diagnose(
         if labels:
             span += " (" + ", ".join(labels[:5]) + (", ..." if len(labels) > 5 else "") + ")"
         parts.append(f"{name} on platform {platform} at {span}, short by up to {max(h[2] for h in hits):.3g}")
-    return InfeasibleError(
-        f"{sol.backend}: {where}; the least relaxation that reconciles them needs "
-        + "; ".join(parts)
-        + ". Relax them or pass soft=True.",
-        sol.backend,
-        sol.raw_status,
+    return "; ".join(parts)
+
+
+def _proof(
+    model: MotionModel,
+    x0: np.ndarray,
+    horizon: int,
+    platform: int,
+    rows: PlatformRows,
+    session_class: type[solvers.QPSession],
+) -> str | None:
+    """A proof that no path of the platform meets its constraints, in words, or ``None``.
+
+    The phase-one problem again, on the rows that *are* the user's constraints
+    (:attr:`~pmht_opt.constraints.base.Constraint.exact`: convex, written whole, in their conic form
+    whatever the backend takes): if even they need slack, no path meets them, whatever the planner's
+    choices. Solved by the phase-one's interior point to its tolerance; slack above
+    :data:`CULPRIT_SLACK` of a constraint's size counts.
+    """
+    exact = [i.conic() for i in rows.items if i.exact and not i.soft]
+    if not exact:
+        return None
+    try:
+        probe, slacks, owners = phase_one(model, x0, horizon, PlatformRows(exact, ()), session_class)
+    except solvers.QPError:
+        return None
+    if not probe.ok:
+        return None
+    culprits = _culprits(slacks, owners, CULPRIT_SLACK)
+    if not culprits:
+        return None
+    names = sorted({i.name for i in exact})
+    return (
+        f"platform {platform}: the constraints {', '.join(names)} cannot all be met by any path; the "
+        f"least relaxation that reconciles them needs {_parts(platform, culprits)}"
     )

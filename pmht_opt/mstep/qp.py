@@ -11,7 +11,14 @@ import numpy as np
 import solvers
 from pmht_opt.constraints.base import Constraint
 from pmht_opt.constraints.blocks import Block
-from pmht_opt.exceptions import ConfigError, InfeasibleError, PmhtOptError, SolverError, UnknownSolverError
+from pmht_opt.exceptions import (
+    ConfigError,
+    InfeasibleError,
+    PmhtOptError,
+    ScheduleError,
+    SolverError,
+    UnknownSolverError,
+)
 from pmht_opt.mstep.base import (
     AnswerCheck,
     ExactReference,
@@ -55,9 +62,9 @@ def check_solution(sol: solvers.QPSolution, accept_inaccurate: bool, platform: i
     if sol.usable(accept_inaccurate):
         return
     where = "" if platform is None else f" (platform {platform})"
-    if sol.status in solvers.INFEASIBLE:
-        raise InfeasibleError(
-            f"{sol.backend}: the M-step constraints are infeasible{where} (status {sol.raw_status}).",
+    if sol.status in solvers.INFEASIBLE:  # a backend's word: the diagnosis gives proofs
+        raise SolverError(
+            f"{sol.backend}: the M-step's rows were reported infeasible{where} (status {sol.raw_status}).",
             backend=sol.backend,
             status=sol.raw_status,
         )
@@ -198,8 +205,8 @@ class QPMStep(MStep):
         def check(sol: solvers.QPSolution) -> None:
             err = self._diagnose(m, data, rows, sol)
             verdicts[m] = err
-            if isinstance(err, InfeasibleError):
-                raise err
+            if isinstance(err, (InfeasibleError, ScheduleError)):
+                raise err  # settled by the phase-one problems: no retry can change it
 
         return check
 

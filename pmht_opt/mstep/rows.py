@@ -40,10 +40,19 @@ class Imposed:
     name: str
     soft: bool = False
     weight: float = 0.0
+    #: Whether the constraint's rows are the constraint itself (:attr:`Constraint.exact`).
+    exact: bool = False
+    #: The block in its conic form, before any inner polygon stood in for its cones: what a proof of
+    #: infeasibility is solved on, whatever the backend takes.
+    cone: Block | None = None
 
     def relaxed(self, weight: float) -> Imposed:
         """The same block imposed softly with ``weight`` (for infeasibility diagnoses)."""
-        return Imposed(self.block, self.name, True, weight)
+        return Imposed(self.block, self.name, True, weight, self.exact, self.cone)
+
+    def conic(self) -> Imposed:
+        """The same constraint with its conic block, imposed hard."""
+        return Imposed(self.cone if self.cone is not None else self.block, self.name, False, 0.0, self.exact)
 
 
 @dataclass
@@ -72,10 +81,9 @@ class RowBuilder:
 
     def _impose(self, con: Constraint, ctx: ConstraintContext) -> list[Imposed]:
         out = []
-        for blk in con.blocks(ctx):
-            if blk.kind == "soc" and not self.conic:
-                blk = inner_polygon(blk)
-            out.append(Imposed(blk, con.name, con.soft, con.weight))
+        for cone in con.blocks(ctx):
+            blk = inner_polygon(cone) if cone.kind == "soc" and not self.conic else cone
+            out.append(Imposed(blk, con.name, con.soft, con.weight, con.exact, cone))
         return out
 
     def rows(
