@@ -5,7 +5,11 @@ Each trial plans one scenario under one constraint case with one backend and sor
 - ``solved``: a plan came back. The study then measures every hard constraint *again* on the returned
   positions, with its own geometry (below), independent of both the solver and the planner's own
   verification, and records the worst violation relative to the constraint's size;
-- ``infeasible``: :class:`~pmht_opt.InfeasibleError`, which must name a constraint;
+- ``infeasible``: :class:`~pmht_opt.InfeasibleError`, which must name a constraint and is raised only
+  on a proof (a pre-check, or a phase-one problem over constraints that are exactly convex);
+- ``unproven``: :class:`~pmht_opt.ScheduleError`: the solver and the diagnosis found no plan on the
+  steps and sides this iteration chose (a keep-out zone's side, a visit's step), which is not a proof
+  that none exists;
 - ``failed``: any other :class:`~pmht_opt.PmhtOptError` (a solver that gave up, a plan that failed its
   verification).
 
@@ -14,7 +18,8 @@ acceleration limits, a circular and a square keep-out zone of growing size place
 starts, guaranteed visits of shrinking radius, and combinations with a known answer: a speed limit that
 leaves far too little travel for the visits, a visit disc inside an obstacle, an acceleration limit
 too small to reach the visits, and an end behind a wall too long to go round at the speed limit (all
-infeasible; the pre-checks name the first three, only a solver and the diagnosis the last).
+infeasible; the pre-checks prove the first three, only a solver and the diagnosis find the last, and as
+the wall is not convex they can name it but not prove it).
 Scenarios: the paper's A, B, C (seed 0) and an irregular one, ``L``: 40 locales along the two arms of an
 L, two platforms starting at its inside corner, ``T = 300``.
 
@@ -215,6 +220,8 @@ def trial(kind: str, case: str, backend: str) -> dict[str, Any]:
         res = po.plan_pmht(sc, cfg, callbacks=clock.callbacks)
     except po.InfeasibleError as err:
         row.update(outcome="infeasible", raised=type(err).__name__, message=str(err)[:300])
+    except po.ScheduleError as err:
+        row.update(outcome="unproven", raised=type(err).__name__, message=str(err)[:300])
     except po.PmhtOptError as err:
         row.update(outcome="failed", raised=type(err).__name__, message=str(err)[:300])
     else:
@@ -279,6 +286,7 @@ def summary(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
                 "plans": len(g),
                 "solved": len(solved),
                 "infeasible_named": int((g["outcome"] == "infeasible").sum()),
+                "unproven": int((g["outcome"] == "unproven").sum()),
                 "failed": int((g["outcome"] == "failed").sum()),
                 "violations_past_tolerance": int((solved["violation"] > solved["tolerance"]).sum()),
                 "max_violation": float(solved["violation"].max()) if len(solved) else 0.0,
@@ -300,6 +308,7 @@ COLUMNS: Columns = (
     ("plans", lambda s: s["plans"]),
     ("solved", lambda s: s["solved"]),
     ("infeasible named", lambda s: s["infeasible_named"]),
+    ("unproven", lambda s: s.get("unproven", 0)),
     ("failed", lambda s: s["failed"]),
     ("violations past tolerance", lambda s: s["violations_past_tolerance"]),
     ("max rel. violation", lambda s: f"{s['max_violation']:.2e}"),

@@ -20,6 +20,8 @@ from pmht_opt import (
     PolygonObstacle,
     Scenario,
     ScenarioError,
+    ScheduleError,
+    SolverError,
     SpeedLimit,
     Terminal,
     VisitAll,
@@ -252,7 +254,8 @@ def _impossible(soft: bool = False) -> list:
 def _unreachable() -> list:
     # A wall 200 units long between platform 0 and its end: going round it takes at least 200 units of
     # travel, the speed limit allows 40 in the horizon. The straight line (4 units) passes every
-    # pre-check: only the solver finds this one, and the diagnosis names it.
+    # pre-check: only the solver finds this one, and the diagnosis names it. The obstacle is not convex
+    # (the path picks a side of it), so the phase-one problem can prove only that the side chosen fails.
     wall = [(2.5, -100.0), (3.0, -100.0), (3.0, 100.0), (2.5, 100.0)]
     return [
         PolygonObstacle(wall, platforms=[0]),
@@ -264,16 +267,18 @@ def _unreachable() -> list:
 @pytest.mark.parametrize("solver", ["clarabel", "osqp", "cvxpy"])
 def test_infeasible_constraints_raise(solver: str) -> None:
     sc = _small()
-    # Named before any solve: the end lies outside the area.
+    # Named before any solve: the end lies outside the area, proven by convex constraints alone.
     with pytest.raises(InfeasibleError, match=r"Terminal\(position\) and AreaBounds.* platform 0"):
         plan_pmht(sc, PMHTConfig(solver=solver, max_iter=2, constraints=_impossible()))
-    # Found by the solver, named by the diagnosis.
-    with pytest.raises(InfeasibleError) as err:
+    # Found by the solver, named by the diagnosis, and not called infeasible: no convex proof exists.
+    with pytest.raises(SolverError) as err:
         plan_pmht(sc, PMHTConfig(solver=solver, max_iter=2, constraints=_unreachable()))
+    assert not isinstance(err.value, InfeasibleError)
+    assert isinstance(err.value, ScheduleError)
     msg = str(err.value)
     assert "PolygonObstacle" in msg and "Terminal" in msg
-    if solver != "osqp":
-        assert "platform 0" in msg and "t = " in msg
+    assert "platform 0" in msg and "t = " in msg
+    assert "not shown to be infeasible" in msg
 
 
 def test_soft_mode_returns_plan_and_reports_violations() -> None:
