@@ -20,7 +20,7 @@ import numpy as np
 
 import solvers
 from pmht_opt import validation
-from pmht_opt.constraints.base import ConstraintContext
+from pmht_opt.constraints.base import ConstraintContext, pinned_ends
 from pmht_opt.constraints.feasibility import check_feasible
 from pmht_opt.estep import EStepResult, estep, estep_scored, gate_margin, log_likelihood, safe_log
 from pmht_opt.exceptions import ConfigError, ScenarioError
@@ -146,6 +146,8 @@ class EMRun:
         for con in cfg.constraints:
             con.check_scenario(scenario)
         check_feasible(scenario, cfg.constraints)
+        #: Where the hard constraints pin each path's end, for the visit schedules (``None``: nowhere).
+        self.ends = pinned_ends(scenario, cfg.constraints)
         # The schedule fits the iterations the run may take: its plan is fitted at the scenario's r.
         limit = min(cfg.max_iter, iteration_limit(AnyOf(cfg.stop)) or cfg.max_iter)
         anneal, note = cfg.anneal.fit(limit)
@@ -287,7 +289,9 @@ class EMRun:
         es = self.estep
         log_tau = safe_log(es.time_prior()) if cfg.update_time_prior else self.log_tau
         log_k = safe_log(es.platform_prior()) if cfg.update_platform_prior else self.log_k
-        ctx = ConstraintContext(scenario=self.scenario, states=self.states, estep=es, iteration=it)
+        ctx = ConstraintContext(
+            scenario=self.scenario, states=self.states, estep=es, iteration=it, ends=self.ends
+        )
         active = schedule.active(cfg.constraints, it)
         strengths = schedule.strengths(cfg.constraints, it)
         t0 = time.perf_counter()

@@ -51,8 +51,7 @@ def _add_planner_options(p: argparse.ArgumentParser, mission: bool) -> None:
         "--solver",
         default=None,
         choices=["auto", *sorted(BACKENDS)],
-        help="M-step backend; auto: banded without constraints, clarabel with them "
-        f"{say('solver', 'auto')}",
+        help=f"M-step backend; auto: banded without constraints, clarabel with them {say('solver', 'auto')}",
     )
     p.add_argument(
         "--iterations",

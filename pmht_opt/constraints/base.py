@@ -24,7 +24,7 @@ linear block, a whole cone of a conic block) gets a non-negative slack ``s`` tha
 from __future__ import annotations
 
 import abc
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, cast
 
@@ -64,6 +64,11 @@ class ConstraintContext:
     strength
         How much of the constraint this iteration imposes, in ``(0, 1]`` (the planner's schedule
         brings constraints with a ``ramp`` in gradually); 1 is the constraint itself.
+    ends
+        ``(M, 3)``: where the hard constraints pin each platform's path at ``t = T``, as ``x, y`` and
+        the radius it must end within (NaN rows for platforms whose end is free); ``None``: no end is
+        pinned. Visit schedules keep visits away from the last steps of a path that must end far from
+        the locale (:func:`pinned_ends`).
     """
 
     scenario: Scenario
@@ -71,6 +76,24 @@ class ConstraintContext:
     estep: EStepResult | None = None
     iteration: int = 1
     strength: float = 1.0
+    ends: np.ndarray | None = None
+
+
+def pinned_ends(scenario: Scenario, constraints: Sequence[Constraint]) -> np.ndarray | None:
+    """``(M, 3)`` final positions (``x, y, radius``) that hard constraints impose; NaN where free.
+
+    Only a constraint's :meth:`Constraint.end_position` pins an end (a hard
+    :class:`~pmht_opt.constraints.terminal.Terminal` position); the smallest radius wins where two pin
+    the same platform. ``None`` when nothing is pinned.
+    """
+    out = np.full((scenario.n_platforms, 3), np.nan)
+    for con in constraints:
+        if con.soft:
+            continue
+        for m, xy, radius in con.end_position(scenario):
+            if np.isnan(out[m, 2]) or radius < out[m, 2]:
+                out[m] = (xy[0], xy[1], radius)
+    return None if np.isnan(out[:, 2]).all() else out
 
 
 @dataclass
@@ -173,6 +196,11 @@ class Constraint(abc.ABC):
         verification tolerances are relative to it. The default is the scenario's extent."""
         xmin, xmax, ymin, ymax = scenario.bounds or (0.0, 1.0, 0.0, 1.0)
         return max(xmax - xmin, ymax - ymin, 1e-12)
+
+    def end_position(self, scenario: Scenario) -> list[tuple[int, np.ndarray, float]]:
+        """``(platform, (2,) position, radius)`` for each platform whose final position this constraint
+        fixes (within ``radius``); none by default (:func:`pinned_ends`)."""
+        return []
 
     @abc.abstractmethod
     def blocks(self, ctx: ConstraintContext) -> list[Block]:

@@ -86,6 +86,13 @@ class Terminal(Constraint):
         """``(1, 2)`` or ``(M, 2)`` final positions on ``scenario`` (``None`` when free)."""
         return scenario.start_positions if self.at_start else self.position
 
+    def end_position(self, scenario: Scenario) -> list[tuple[int, np.ndarray, float]]:
+        positions = self.targets(scenario)
+        if positions is None:
+            return []
+        row = (lambda m: 0) if positions.shape[0] == 1 else (lambda m: m)
+        return [(m, positions[row(m)], self.radius) for m in self.applies_to(scenario)]
+
     @staticmethod
     def _points(name: str, value: Any) -> np.ndarray:
         arr = real_array(f"Terminal.{name}", value)

@@ -30,8 +30,8 @@ def choose_visits(ctx: ConstraintContext, radius: float | np.ndarray) -> tuple[n
 
     Each locale takes its MAP ``(platform, time)``, in order of decreasing MAP weight, unless that time
     clashes with a locale already placed on the same platform, with its start (at ``t = 0``) or with
-    the end of its current path (at ``t = T``: a platform that must be home at the end cannot be far
-    away just before): two visits clash when the platform
+    the end its path is pinned to (at ``t = T``, ``ctx.ends``: a platform that must be home at the end
+    cannot be far away just before): two visits clash when the platform
     would have to cover the distance between the two discs faster than twice the current path's mean
     speed (two locales further apart than their radii add up to, at the same step, always clash).
     ``radius`` is one number or one per locale. Two locales share a step only if they lie within
@@ -52,7 +52,8 @@ def choose_visits(ctx: ConstraintContext, radius: float | np.ndarray) -> tuple[n
     best = es.max_weight()  # the weight at each locale's MAP (platform, time)
     steps = np.diff(ctx.states[:, :, POS], axis=1)
     speed = np.median(np.hypot(steps[..., 0], steps[..., 1]), axis=1)  # (M,) typical step length
-    ends = ctx.states[:, -1][:, POS]  # (M, 2) where the current paths end
+    # Where the hard constraints pin each path's end (NaN: free, no end gap).
+    ends = np.full((starts.shape[0], 3), np.nan) if ctx.ends is None else ctx.ends
     T = ctx.states.shape[1] - 1
     N, M = locales.shape[0], starts.shape[0]
     radii = np.broadcast_to(np.asarray(radius, dtype=float), (N,))
@@ -67,7 +68,8 @@ def choose_visits(ctx: ConstraintContext, radius: float | np.ndarray) -> tuple[n
         # The start (t = 0) counts as a placed visit, for speed only: a locale 1 unit from the start
         # cannot be met at t = 1.
         start_gap = max(float(np.hypot(*(starts[m] - locales[n]))) - radii[n], 0.0)
-        end_gap = max(float(np.hypot(*(ends[m] - locales[n]))) - radii[n], 0.0)
+        end_gap = max(float(np.hypot(*(ends[m, :2] - locales[n]))) - radii[n] - ends[m, 2], 0.0)
+        end_gap = 0.0 if np.isnan(end_gap) else end_gap
         vref = 2.0 * max(float(speed[m]), 1e-9)
         apart = np.hypot(placed_xy[m, :k, 0] - locales[n, 0], placed_xy[m, :k, 1] - locales[n, 1])
         reach = placed_r[m, :k] + radii[n]

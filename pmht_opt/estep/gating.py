@@ -193,9 +193,7 @@ def _gate_block(
     return (None if np.all(keep) else keep), best
 
 
-def _choose_source(
-    inputs: EStepInputs, margin: float
-) -> TreeCandidates | SupportCandidates | None:
+def _choose_source(inputs: EStepInputs, margin: float) -> TreeCandidates | SupportCandidates | None:
     """Where the candidates come from, or ``None`` where the gate would keep too many to pay.
 
     Candidates come from whichever is smaller: the points within the pairs' radii, or the support of

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from pmht_opt import validation
-from pmht_opt.constraints.base import Constraint, ConstraintContext, fitting_constraints
+from pmht_opt.constraints.base import Constraint, ConstraintContext, fitting_constraints, pinned_ends
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.mstep.base import MStep, MStepData, MStepOutput
 from pmht_opt.mstep.formulation import mstep_objective
@@ -112,7 +112,9 @@ def solve_mstep(
         states = np.repeat(scenario.initial_states[:, None, :], T + 1, axis=1)
     else:
         states = _weights("paths", paths, (M, T + 1, 6), nonneg=False)
-    ctx = ConstraintContext(scenario=scenario, states=states) if cons else None
+    ctx = None
+    if cons:
+        ctx = ConstraintContext(scenario=scenario, states=states, ends=pinned_ends(scenario, cons))
     mstep = make_mstep(scenario, check_backend(solver), settings, accept_inaccurate, 1, cons)
     try:
         out = mstep.solve(MStepData(W, WZ, r, ctx, tuple(range(len(cons)))))

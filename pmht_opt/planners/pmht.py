@@ -99,9 +99,7 @@ def observing(callbacks: EMCallbacks | None, callback: ProgressObserver | None) 
     return _also_after(callbacks, report)
 
 
-def with_progress(
-    callbacks: EMCallbacks | None, callback: ProgressCallback | None
-) -> EMCallbacks | None:
+def with_progress(callbacks: EMCallbacks | None, callback: ProgressCallback | None) -> EMCallbacks | None:
     """``callbacks`` with ``callback(iteration, objective)`` also called after every iteration (the
     callback of :func:`plan_pmht` and :func:`~pmht_opt.plan_smoothed`)."""
     if callback is None:
@@ -111,9 +109,7 @@ def with_progress(
     return _also_after(callbacks, lambda run, record: callback(record.iteration, record.objective))
 
 
-def _also_after(
-    callbacks: EMCallbacks | None, fn: Callable[[EMRun, IterationRecord], object]
-) -> EMCallbacks:
+def _also_after(callbacks: EMCallbacks | None, fn: Callable[[EMRun, IterationRecord], object]) -> EMCallbacks:
     """``callbacks`` with ``fn(run, record)`` called after every iteration, after their own."""
     base = callbacks if callbacks is not None else EMCallbacks()
     inner = base.after_iteration

@@ -46,6 +46,7 @@ from pmht_opt.tours import DiscProblem, TourSettings, plan_tours
 #: iterations marks the end of that.
 SMOOTHED_CONVERGED = Converged(path_rtol=3e-4, stable=3)
 
+
 def _same_places(a: Scenario | None, b: Scenario) -> bool:
     """Whether a tour ordered on ``a`` (``None``: unknown) is one of ``b``'s locales and starts."""
     if a is None or a is b:
