@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from geojson_checks import check_rfc7946
 
 import pmht_opt as po
 from pmht_opt.exceptions import ConfigError
@@ -25,6 +26,7 @@ from pmht_opt.io import (
     read_qgc_plan,
 )
 from pmht_opt.io.frame import Frame
+from pmht_opt.io.geojson import positions
 from pmht_opt.io.qgc import ITEM_KEYS, MISSION_KEYS, PLAN_KEYS, simplify
 
 
@@ -72,20 +74,16 @@ def test_csv_of_a_geo_plan_adds_latitude_and_longitude(
 
 
 def _check_geojson_object(obj: dict[str, Any], geo: bool) -> None:
-    """RFC 7946's structure: a FeatureCollection of Features with geometry and properties."""
+    """RFC 7946's structure: a FeatureCollection of Features with geometry and properties, valid under an
+    independent validator (tests/geojson_checks.py), with closed counter-clockwise rings."""
     assert obj["type"] == "FeatureCollection" and "crs" not in obj
     for f in obj["features"]:
         assert f["type"] == "Feature" and set(f) >= {"geometry", "properties"}
-        g = f["geometry"]
-        coords = [g["coordinates"]] if g["type"] == "Point" else g["coordinates"]
-        assert g["type"] in ("Point", "LineString") and all(len(c) == 2 for c in coords)
-        if g["type"] == "LineString":
-            assert len(coords) >= 2
-        if geo:  # [longitude, latitude]
-            assert all(-180 <= c[0] <= 180 and -90 <= c[1] <= 90 for c in coords)
+        assert f["geometry"]["type"] in ("Point", "LineString", "MultiLineString", "Polygon", "MultiPolygon")
+    check_rfc7946(obj, geo)
     if geo:
         west, south, east, north = obj["bbox"]
-        every = np.array([c for f in obj["features"] for c in np.atleast_2d(f["geometry"]["coordinates"])])
+        every = np.array([c for f in obj["features"] for c in positions(f["geometry"])])
         assert np.allclose([west, south], every.min(axis=0)) and np.allclose([east, north], every.max(axis=0))
 
 
