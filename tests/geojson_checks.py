@@ -10,6 +10,7 @@ at the antimeridian meeting on it at one latitude.
 
 from __future__ import annotations
 
+import itertools
 from typing import Any
 
 import geojson_validator
@@ -20,7 +21,13 @@ geojson_validator.configure_logging(enabled=False)
 #: The validator's criteria that are "problematic" rather than "invalid" but still wrong for these files
 #: (``duplicate_nodes`` is left out: a path at rest repeats its position; ``excessive_coordinate_precision``
 #: too: 1e-9 degrees, 0.1 mm, is the files' stated resolution).
-PROBLEMS = ("holes", "self_intersection", "crosses_antimeridian", "outside_lat_lon_boundaries", "3d_coordinates")
+PROBLEMS = (
+    "holes",
+    "self_intersection",
+    "crosses_antimeridian",
+    "outside_lat_lon_boundaries",
+    "3d_coordinates",
+)
 
 
 def validator_findings(obj: dict[str, Any], geo: bool = True) -> dict[str, Any]:
@@ -79,7 +86,7 @@ def check_rfc7946(obj: dict[str, Any], geo: bool = True) -> None:
                 assert np.all(np.abs(part[:, 0]) <= 180) and np.all(np.abs(part[:, 1]) <= 90)
                 assert np.all(np.abs(np.diff(part[:, 0])) < 180), "a part jumps across the antimeridian"
         if geometry["type"] == "MultiLineString":
-            for a, b in zip(parts[:-1], parts[1:], strict=True):
+            for a, b in itertools.pairwise(parts):
                 assert abs(a[-1, 0]) == 180 and b[0, 0] == -a[-1, 0] and a[-1, 1] == b[0, 1], (
                     "the parts of a line do not meet on the antimeridian"
                 )
