@@ -210,7 +210,7 @@ def export_geojson(result: Any, path: str | Path, origin: GeoOrigin | None = Non
     return file_path("path", path)
 
 
-def _joined(geometry: dict[str, Any]) -> np.ndarray:
+def line_positions(geometry: dict[str, Any]) -> np.ndarray:
     """A path's positions ``(K, 2)`` from its LineString, or from the parts of its MultiLineString
     joined again: each cut at the antimeridian ends one part and starts the next
     (:mod:`pmht_opt.io.antimeridian`), so both copies of it are dropped."""
@@ -240,7 +240,7 @@ def read_geojson_paths(path: str | Path, origin: GeoOrigin | None = None) -> lis
         raise ScenarioError(f"{path.name}: frame {frame!r} does not match the origin given ({origin}).")
     try:
         found = [
-            (int(f["properties"]["platform"]), _joined(f["geometry"]))
+            (int(f["properties"]["platform"]), line_positions(f["geometry"]))
             for f in obj.get("features", [])
             if (f.get("properties") or {}).get("kind") == "path"
         ]
