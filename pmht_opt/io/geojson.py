@@ -211,13 +211,11 @@ def export_geojson(result: Any, path: str | Path, origin: GeoOrigin | None = Non
 
 
 def line_positions(geometry: dict[str, Any]) -> np.ndarray:
-    """A path's positions ``(K, 2)`` from its LineString, or from the parts of its MultiLineString
-    joined again: each cut at the antimeridian ends one part and starts the next
+    """A path's positions ``(K, 2)``: a LineString's coordinates, or the parts of a MultiLineString
+    joined again. Each cut at the antimeridian ends one part and starts the next
     (:mod:`pmht_opt.io.antimeridian`), so both copies of it are dropped."""
-    if geometry["type"] == "LineString":
+    if geometry.get("type") != "MultiLineString":
         return np.asarray(geometry["coordinates"], dtype=float)
-    if geometry["type"] != "MultiLineString":
-        raise ValueError(f"a path is a LineString or a MultiLineString, not a {geometry['type']}")
     parts = [np.asarray(p, dtype=float) for p in geometry["coordinates"]]
     if any(p.ndim != 2 or p.shape[0] < 2 for p in parts):
         raise ValueError("a part of a path holds fewer than two positions")
