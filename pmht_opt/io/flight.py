@@ -77,7 +77,7 @@ def polyline_distance(points: np.ndarray, line: np.ndarray) -> np.ndarray:
     )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Zone:
     """One promise about where legs go: keep out of a disc or a convex polygon, or stay in a box.
 
@@ -163,7 +163,7 @@ def _polygon_depth(vertices: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.nda
     return lo
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Coverage:
     """The promise that every site is within its radius of some leg.
 

@@ -53,8 +53,8 @@ from pmht_opt.io import fields
 from pmht_opt.io.constraints import read_constraint, write_constraint
 from pmht_opt.io.frame import Frame
 from pmht_opt.io.points import read_points, read_radii
-from pmht_opt.io.qgc import ENDS
 from pmht_opt.io.settings import PlannerSettings, read_settings
+from pmht_opt.io.waypoints import ENDS
 from pmht_opt.scenario import Scenario
 from pmht_opt.toml_writer import dumps
 from pmht_opt.validation import writing

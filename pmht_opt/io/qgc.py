@@ -43,12 +43,10 @@ from typing import Any
 import numpy as np
 
 from pmht_opt import validation
-from pmht_opt.constraints import SpeedLimit
 from pmht_opt.exceptions import ConfigError, ScenarioError
 from pmht_opt.geometry.earth import GeoOrigin, check_origin
-from pmht_opt.io.flight import plan_promises
-from pmht_opt.io.frame import GEO_DECIMALS, GEO_RESOLUTION
-from pmht_opt.io.waypoints import SOURCES, Route, plan_routes, return_breach, simplify, tour_routes
+from pmht_opt.io.frame import GEO_DECIMALS
+from pmht_opt.io.waypoints import ENDS, SOURCES, Flight, checked_speed, flights, simplify
 from pmht_opt.result import check_plan
 from pmht_opt.validation import file_path, writing
 
@@ -60,10 +58,6 @@ FRAME_MISSION, FRAME_RELATIVE_ALT = 2, 3
 FIRMWARE = {"generic": 0, "ardupilot": 3, "px4": 12}
 #: ``MAV_TYPE`` values by name: quadrotor, fixed wing, ground rover, surface boat.
 VEHICLES = {"multirotor": 2, "fixedwing": 1, "rover": 10, "boat": 11}
-#: How a mission ends: return to launch, land at the last waypoint, or hold there.
-ENDS = ("rtl", "land", "hover")
-#: A route whose last waypoint is this close (m) to its first ends at home: it lands there by default.
-AT_HOME = 1e-3
 #: The keys QGroundControl's plan format documents, at each level.
 PLAN_KEYS = ("fileType", "version", "groundStation", "mission", "geoFence", "rallyPoints")
 MISSION_KEYS = (
@@ -77,7 +71,16 @@ MISSION_KEYS = (
 )
 ITEM_KEYS = ("autoContinue", "command", "doJumpId", "frame", "params", "type")
 
-__all__ = ["ENDS", "SOURCES", "PlanFiles", "export_qgc_plan", "qgc_paths", "read_qgc_plan", "simplify"]
+__all__ = [
+    "ENDS",
+    "SOURCES",
+    "Flight",
+    "PlanFiles",
+    "export_qgc_plan",
+    "qgc_paths",
+    "read_qgc_plan",
+    "simplify",
+]
 
 
 def _item(
@@ -125,16 +128,11 @@ class _Flight:
         for name, number in (("altitude", self.altitude), ("acceptance_radius", self.acceptance_radius)):
             validation.real(name, number, ConfigError, 0.0)
         if self.speed is not None:
-            _checked_speed(self.speed)
+            checked_speed(self.speed)
         if self.tolerance is not None:
             validation.real("tolerance", self.tolerance, ConfigError, 0.0, lo_open=True)
         if not (isinstance(self.takeoff, (bool, np.bool_)) or self.takeoff is None):
             raise ConfigError(f"takeoff: expected True or False, got {self.takeoff!r}.")
-
-
-def _checked_speed(speed: Any) -> float:
-    """``speed`` (m/s), given or each platform's mean, if it is a non-negative number."""
-    return validation.real("speed", speed, ConfigError, 0.0)
 
 
 def _end(end: str | None, land: Any) -> str | None:
@@ -150,40 +148,6 @@ def _end(end: str | None, land: Any) -> str | None:
     return older
 
 
-def cruise_speeds(result: Any, speed: float | None = None) -> np.ndarray:
-    """``(M,)`` each platform's ground speed (m/s): ``speed`` if given, else the smallest
-    :class:`~pmht_opt.constraints.SpeedLimit` binding the platform, else its mean planned speed
-    (length over the horizon).
-
-    Raises
-    ------
-    ConfigError
-        A ``speed`` above a hard speed limit of the plan (named): it would break the plan's promise.
-    """
-    sc = result.scenario
-    limits = np.full(sc.n_platforms, np.inf)
-    hard = np.full(sc.n_platforms, np.inf)
-    for con in result.constraints:
-        if isinstance(con, SpeedLimit):
-            for m in con.applies_to(sc):
-                limits[m] = min(limits[m], con.limit_for(m))
-                if not con.soft:
-                    hard[m] = min(hard[m], con.limit_for(m))
-    if speed is not None:
-        speed = _checked_speed(speed)
-        over = np.flatnonzero(speed > hard)
-        if over.size:
-            m = int(over[0])
-            raise ConfigError(
-                f"speed: {speed:g} m/s is above platform {m}'s speed limit {hard[m]:g} m/s, which the plan "
-                "promises; give at most the limit, or leave speed out to fly at it."
-            )
-        return np.full(sc.n_platforms, speed)
-    seg = np.diff(np.asarray(result.positions), axis=1)
-    mean = np.hypot(seg[..., 0], seg[..., 1]).sum(axis=1) / (sc.horizon * sc.dt)
-    return np.array([_checked_speed(v) for v in np.where(np.isfinite(limits), limits, mean)])
-
-
 def _through(origin: GeoOrigin) -> Any:
     """Points of the plane as a file holds them: to degrees, rounded, and back."""
     plane = origin.plane
@@ -194,34 +158,9 @@ def _through(origin: GeoOrigin) -> Any:
     return through
 
 
-@dataclass(frozen=True)
-class Flight:
-    """One platform's exported mission: where it flies, how fast and how it ends.
-
-    Attributes
-    ----------
-    route
-        Its waypoints (:class:`~pmht_opt.io.waypoints.Route`: points as written, the largest distance
-        between its legs and the planned path, waypoints added to keep the promises).
-    speed
-        Ground speed, m/s.
-    end
-        ``"rtl"``, ``"land"`` or ``"hover"``.
-    """
-
-    route: Route
-    speed: float
-    end: str
-
-    @property
-    def deviation(self) -> float:
-        """The largest distance (m) between the legs and the planned path."""
-        return self.route.deviation
-
-
 class PlanFiles(list[Path]):
     """The files :func:`export_qgc_plan` wrote, in platform order (a list of paths), with each
-    platform's :class:`Flight` in :attr:`flights`."""
+    platform's :class:`~pmht_opt.io.waypoints.Flight` in :attr:`flights`."""
 
     def __init__(self, files: list[Path], flights: list[Flight]) -> None:
         super().__init__(files)
@@ -233,35 +172,18 @@ class PlanFiles(list[Path]):
         return np.array([f.deviation for f in self.flights])
 
 
-def qgc_flights(result: Any, origin: GeoOrigin, flight: _Flight) -> list[Flight]:
-    """Every platform's :class:`Flight` under the options ``flight``, checked against the plan's
-    promises (module notes); see :func:`export_qgc_plan`."""
-    sc = result.scenario
-    tol = float(sc.radii.min()) / 10 if flight.tolerance is None else float(flight.tolerance)
+def qgc_flights(result: Any, origin: GeoOrigin, options: _Flight) -> list[Flight]:
+    """Every platform's :class:`~pmht_opt.io.waypoints.Flight` under ``options``, checked against the
+    plan's promises on the coordinates as the file holds them (module notes)."""
+    tol = float(result.scenario.radii.min()) / 10 if options.tolerance is None else float(options.tolerance)
     if not (math.isfinite(tol) and tol > 0):
-        raise ConfigError(f"tolerance: expected a positive number of metres, got {flight.tolerance!r}.")
-    speeds = cruise_speeds(result, flight.speed)
-    promises = plan_promises(result, GEO_RESOLUTION)
-    through = _through(origin)
-    spacing = float(np.clip(tol / 10, 0.01, 0.5))  # the deviation to within half of it
-    if flight.source == "tour":
-        routes = tour_routes(result, promises, through, spacing)
-    else:
-        routes = plan_routes(result, promises, tol, through, spacing)
-    flights = []
-    for route, speed in zip(routes, speeds, strict=True):
-        home = float(np.hypot(*(route.waypoints[-1] - route.waypoints[0])))
-        end = flight.end or ("land" if home <= AT_HOME else "rtl")
-        if end == "rtl":
-            refusal = return_breach(promises, route)
-            if refusal is not None:
-                raise refusal
-        flights.append(Flight(route, float(speed), end))
-    return flights
+        raise ConfigError(f"tolerance: expected a positive number of metres, got {options.tolerance!r}.")
+    return flights(result, _through(origin), tol, speed=options.speed, end=options.end, source=options.source)
 
 
 def platform_plan(flight: Flight, origin: GeoOrigin, options: _Flight) -> dict[str, Any]:
-    """The QGroundControl plan (a dict) of one platform's :class:`Flight`; see :func:`export_qgc_plan`."""
+    """The QGroundControl plan (a dict) of one platform's :class:`~pmht_opt.io.waypoints.Flight`; see
+    :func:`export_qgc_plan`."""
     latlon = np.round(origin.plane.to_geodetic(flight.route.waypoints), GEO_DECIMALS)
     flies = options.vehicle not in ("rover", "boat")
     cruise = round(flight.speed, 3) if flight.speed > 0 else 1.0
@@ -377,9 +299,9 @@ def export_qgc_plan(
     Returns
     -------
     PlanFiles
-        The files written, in platform order (a list of paths), with each platform's :class:`Flight`
-        (``.flights``: waypoints, speed, end, and the largest distance between the legs and the
-        planned path, ``.deviation``).
+        The files written, in platform order (a list of paths), with each platform's
+        :class:`~pmht_opt.io.waypoints.Flight` (``.flights``: waypoints, speed, end, and the largest
+        distance between the legs and the planned path, ``.deviation``).
 
     Raises
     ------

@@ -1,4 +1,4 @@
-"""Waypoints that keep a plan's promises as flown: chosen on the planned path, or the planner's tour.
+"""Each platform's flight: waypoints that keep the plan's promises as flown, its speed and its end.
 
 ``source = "plan"``
     Points of the planned path: its ends, the point nearest each site it is assigned, and as many more
@@ -18,8 +18,13 @@
     same way; there is nothing to refine, so a leg that breaks a promise (a tour drawn without the
     keep-out zones, say) is refused.
 
+Each route is flown at one ground speed (:func:`cruise_speeds`: the plan's speed limit, which the
+plan keeps on every step, else the mean planned speed) and ends as asked: a return to launch flies
+one more straight leg, from the last waypoint home, measured like the others; a landing or a hold
+adds none.
+
 A refusal is :class:`~pmht_opt.exceptions.SolverError` naming the platform, the leg and the
-constraint: no file is written that breaks a promise.
+constraint (or the site): no file is written that breaks a promise.
 """
 
 from __future__ import annotations
@@ -31,12 +36,19 @@ from typing import Any
 
 import numpy as np
 
+from pmht_opt import validation
+from pmht_opt.constraints import SpeedLimit
 from pmht_opt.exceptions import ConfigError, SolverError
 from pmht_opt.geometry import point_polyline_distance
-from pmht_opt.io.flight import Promises, Zone, deviation
+from pmht_opt.io.flight import Promises, Zone, deviation, plan_promises
+from pmht_opt.io.frame import GEO_RESOLUTION
 
 #: Where waypoints come from.
 SOURCES = ("plan", "tour")
+#: How a mission ends: return to launch, land at the last waypoint, or hold there.
+ENDS = ("rtl", "land", "hover")
+#: A route whose last waypoint is this close (m) to its first ends at home: it lands there by default.
+AT_HOME = 1e-3
 
 #: ``through(points)``: points ``(K, 2)`` of the plane as the file will hold them (rounded).
 Through = Callable[[np.ndarray], np.ndarray]
@@ -142,10 +154,11 @@ def plan_routes(
                 m, t = _nearest_segment(paths, promises.coverage.sites[n])
                 gap = promises.coverage.gaps([through(paths[m, t : t + 2])])[n]
                 if gap > 0:
+                    radius = promises.coverage.radii[n]
                     raise SolverError(
-                        f"site {n} is {gap:.3g} m beyond its radius {promises.coverage.radii[n]:g} m (with "
-                        f"its tolerance) from every planned path: the plan does not cover it, so no "
-                        "flight along it can.",
+                        f"site {n} is {gap:.3g} m beyond its promised radius {radius:g} m "
+                        f"(with its tolerance) from every planned path, platform {m}'s the nearest: the plan "
+                        "does not cover it, so no waypoints along it can.",
                         status="export refused",
                     )
                 if not {t, t + 1} <= keep[m]:
@@ -231,3 +244,108 @@ def return_breach(promises: Promises, route: Route) -> SolverError | None:
         "'land' or 'hover', or plan a return to base.",
         status="export refused",
     )
+
+
+def checked_speed(speed: Any) -> float:
+    """``speed`` (m/s), given or each platform's mean, if it is a non-negative number."""
+    return validation.real("speed", speed, ConfigError, 0.0)
+
+
+def cruise_speeds(result: Any, speed: float | None = None) -> np.ndarray:
+    """``(M,)`` each platform's ground speed (m/s): ``speed`` if given, else the smallest
+    :class:`~pmht_opt.constraints.SpeedLimit` binding the platform, else its mean planned speed
+    (length over the horizon).
+
+    Raises
+    ------
+    ConfigError
+        A ``speed`` above a hard speed limit of the plan (named): it would break the plan's promise.
+    """
+    sc = result.scenario
+    limits = np.full(sc.n_platforms, np.inf)
+    hard = np.full(sc.n_platforms, np.inf)
+    for con in result.constraints:
+        if isinstance(con, SpeedLimit):
+            for m in con.applies_to(sc):
+                limits[m] = min(limits[m], con.limit_for(m))
+                if not con.soft:
+                    hard[m] = min(hard[m], con.limit_for(m))
+    if speed is not None:
+        speed = checked_speed(speed)
+        over = np.flatnonzero(speed > hard)
+        if over.size:
+            m = int(over[0])
+            raise ConfigError(
+                f"speed: {speed:g} m/s is above platform {m}'s speed limit {hard[m]:g} m/s, which the plan "
+                "promises; give at most the limit, or leave speed out to fly at it."
+            )
+        return np.full(sc.n_platforms, speed)
+    seg = np.diff(np.asarray(result.positions), axis=1)
+    mean = np.hypot(seg[..., 0], seg[..., 1]).sum(axis=1) / (sc.horizon * sc.dt)
+    return np.array([checked_speed(v) for v in np.where(np.isfinite(limits), limits, mean)])
+
+
+@dataclass(frozen=True)
+class Flight:
+    """One platform's exported mission: where it flies, how fast and how it ends.
+
+    Attributes
+    ----------
+    route
+        Its waypoints (:class:`Route`: points as written, the largest distance
+        between its legs and the planned path, waypoints added to keep the promises).
+    speed
+        Ground speed, m/s.
+    end
+        ``"rtl"``, ``"land"`` or ``"hover"``.
+    """
+
+    route: Route
+    speed: float
+    end: str
+
+    @property
+    def deviation(self) -> float:
+        """The largest distance (m) between the legs and the planned path."""
+        return self.route.deviation
+
+
+def flights(
+    result: Any,
+    through: Through,
+    tolerance: float,
+    *,
+    speed: float | None = None,
+    end: str | None = None,
+    source: str = "plan",
+) -> list[Flight]:
+    """Every platform's :class:`Flight`: its route from ``source`` (module notes), its speed
+    (:func:`cruise_speeds`) and its end (``None``: ``"land"`` where the route ends within
+    :data:`AT_HOME` of its start, the plan's return to base, else ``"rtl"``); ``through`` rounds points
+    as the file will (:data:`~pmht_opt.io.frame.GEO_RESOLUTION` at most), ``tolerance`` is the
+    simplification's.
+
+    Raises
+    ------
+    ConfigError
+        ``source="tour"`` without a tour, a speed above the plan's limit.
+    SolverError
+        No waypoints keep a promise, or a return to launch's leg home breaks one.
+    """
+    speeds = cruise_speeds(result, speed)
+    promises = plan_promises(result, GEO_RESOLUTION)
+    spacing = float(np.clip(tolerance / 10, 0.01, 0.5))  # the deviation to within half of it
+    if source == "tour":
+        routes = tour_routes(result, promises, through, spacing)
+    else:
+        routes = plan_routes(result, promises, tolerance, through, spacing)
+    out = []
+    for route, cruise in zip(routes, speeds, strict=True):
+        home = float(np.hypot(*(route.waypoints[-1] - route.waypoints[0])))
+        ending = end or ("land" if home <= AT_HOME else "rtl")
+        if ending == "rtl":
+            refusal = return_breach(promises, route)
+            if refusal is not None:
+                raise refusal
+        out.append(Flight(route, float(cruise), ending))
+    return out
