@@ -370,7 +370,7 @@ def test_the_readme_quick_start_commands() -> None:
     assert "/pmht-demo-*.png" in ignored and "/out/" in ignored
 
 
-def test_a_tour_export_is_refused_before_planning_without_a_tour(
+def test_a_tour_or_a_speed_over_the_limit_is_refused_before_planning(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     def never(*args: Any, **kwargs: Any) -> None:
@@ -381,6 +381,9 @@ def test_a_tour_export_is_refused_before_planning_without_a_tour(
     assert main([*argv, "--waypoints", "tour"]) == 2
     err = capsys.readouterr().err
     assert "--waypoints tour: the pmht planner draws no straight-line tour" in err and err.count("\n") == 1
+    assert main([*argv, "--speed", "12"]) == 2
+    err = capsys.readouterr().err
+    assert "--speed: 12 m/s is above platform 0's speed limit 10 m/s" in err and err.count("\n") == 1
 
 
 def test_the_survey_exports_flights_that_end_with_rtl_or_land(

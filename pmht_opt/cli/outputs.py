@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from pmht_opt import validation
+from pmht_opt.constraints import SpeedLimit
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.io import Mission, export_csv, export_geojson, export_qgc_plan, qgc_paths
 from pmht_opt.io.qgc import ENDS, SOURCES, PlanFiles
@@ -167,6 +168,18 @@ def _check_flight(args: argparse.Namespace, plan_export: bool, mission: Mission 
             validation.real(flag, value, ConfigError, 0.0)
         if not plan_export:
             raise ConfigError(f"{flag}: applies to QGroundControl exports only; add --export FILE.plan.")
+    speed = getattr(args, "speed", None)
+    if mission is not None and speed is not None:
+        for con in mission.constraints:
+            if not isinstance(con, SpeedLimit) or con.soft:
+                continue
+            for m in con.applies_to(mission.scenario):
+                limit = con.limit_for(m)
+                if speed > limit:
+                    raise ConfigError(
+                        f"--speed: {speed:g} m/s is above platform {m}'s speed limit {limit:g} m/s, "
+                        "which the plan keeps; give at most the limit, or leave --speed out to fly at it."
+                    )
     method = mission.planner.method if mission is not None else "pmht"
     if getattr(args, "waypoints", None) == "tour" and method != "coverage":
         raise ConfigError(
