@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from geojson_checks import check_rfc7946
+from test_io_flights import ring_mission
 from test_io_mission import BASE, TABLES, mission_text, write
 
 import pmht_opt as po
@@ -127,6 +129,13 @@ def test_closed_orderings_are_asked_for_by_name(tmp_path: Path, monkeypatch: pyt
         (["--speed", "nan"], "--speed: expected"),
         (["--altitude", "40"], "--altitude: applies to QGroundControl exports only"),
         (["--speed", "3", "--export", "{tmp}/p.csv"], "--speed: applies to QGroundControl exports only"),
+        (["--end", "fly", "--export", "{tmp}/p.csv"], "--end: expected one of rtl, land, hover, got 'fly'"),
+        (["--end", "land"], "--end: applies to QGroundControl exports only"),
+        (["--waypoints", "path"], "--waypoints: expected one of plan, tour, got 'path'"),
+        (
+            ["--waypoints", "tour", "--export", "{tmp}/p.csv"],
+            "--waypoints: applies to QGroundControl exports",
+        ),
     ],
 )
 def test_outputs_are_checked_before_planning(
@@ -380,3 +389,49 @@ def test_an_ordering_figure_draws_the_missions_obstacles(tmp_path: Path) -> None
     plain = plot_tour(tour, tmp_path / "plain.png", sc)
     zoned = plot_tour(tour, tmp_path / "zoned.png", sc, constraints=[po.CircleObstacle((2.0, 2.0), 0.5)])
     assert plain.read_bytes() != zoned.read_bytes()
+
+
+def test_a_tour_or_a_speed_over_the_limit_is_refused_before_planning(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def never(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError("planned before checking the outputs")
+
+    monkeypatch.setattr(cli.commands, "plan_mission", never)
+    argv = ["plan", "--example", "survey", "--planner", "pmht", "--export", str(tmp_path / "s.plan")]
+    assert main([*argv, "--waypoints", "tour"]) == 2
+    err = capsys.readouterr().err
+    assert "--waypoints tour: the pmht planner draws no straight-line tour" in err and err.count("\n") == 1
+    assert main([*argv, "--speed", "12"]) == 2
+    err = capsys.readouterr().err
+    assert "--speed: 12 m/s is above platform 0's speed limit 10 m/s" in err and err.count("\n") == 1
+
+
+def test_the_survey_exports_flights_that_end_with_rtl_or_land(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    argv = "plan --example survey --planner pmht --export out/s.plan out/s.geojson --quiet".split()
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    for m in range(3):
+        plan = po.io.read_qgc_plan(tmp_path / "out" / f"s-{m}.plan")
+        assert plan["end"] in ("rtl", "land") and plan["speed"] == 10.0  # the survey's speed limit
+        assert re.search(rf"s-{m}\.plan \(\d+ waypoints.*; ends (rtl|land); legs within [\d.]+ m", printed)
+    check_rfc7946(json.loads((tmp_path / "out" / "s.geojson").read_text()))
+
+
+def test_flight_options_from_the_mission_and_the_command_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    mission = ring_mission("coverage")
+    mission.end = "hover"
+    path = po.io.save_mission(mission, tmp_path / "ring.toml")
+    assert main(["plan", str(path), "--export", str(tmp_path / "a.plan"), "--quiet"]) == 0
+    assert [po.io.read_qgc_plan(tmp_path / f"a-{m}.plan")["end"] for m in range(2)] == ["hover", "hover"]
+    argv = ["plan", str(path), "--export", str(tmp_path / "t.plan"), "--waypoints", "tour", "--end", "rtl"]
+    assert main([*argv, "--quiet"]) == 0
+    assert "ends rtl" in capsys.readouterr().out
+    for m in range(2):
+        items = json.loads((tmp_path / f"t-{m}.plan").read_text())["mission"]["items"]
+        assert items[-1]["command"] == 20

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import inspect
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -276,6 +277,32 @@ ymax = 1000.0
         )
     with pytest.raises(ScenarioError, match=r"geo\.origin: expected"):
         load_mission(write(tmp_path, text.replace("origin = [-35.3632, 149.1652]", 'origin = "Canberra"')))
+
+
+def test_geo_end_says_how_exported_flights_end(tmp_path: Path) -> None:
+    text = """
+horizon = 50
+locales = [[-35.3600, 149.1650]]
+starts = [[-35.3632, 149.1652]]
+[geo]
+origin = [-35.3632, 149.1652]
+altitude = 45.0
+end = "land"
+"""
+    mission = load_mission(write(tmp_path, text))
+    assert mission.end == "land"
+    again = load_mission(save_mission(mission, tmp_path / "again.toml"))
+    assert again.end == "land" and 'end = "land"' in (tmp_path / "again.toml").read_text()
+    assert load_mission(write(tmp_path, text.replace('end = "land"\n', ""))).end is None
+    for bad, shown in (('"fly"', "a string ('fly')"), ("true", "a boolean (True)")):
+        with pytest.raises(
+            ScenarioError, match=rf"geo\.end: expected one of rtl, land, hover, got {re.escape(shown)}"
+        ):
+            load_mission(write(tmp_path, text.replace('"land"', bad)))
+    with pytest.raises(ScenarioError, match=r"geo: unknown key 'ending'; it takes origin, altitude, end"):
+        load_mission(write(tmp_path, text.replace("end =", "ending =")))
+    with pytest.raises(ConfigError, match=r"^end: expected one of rtl, land, hover or None, got 'up'"):
+        Mission(mission.scenario, origin=mission.origin, end="up")
 
 
 def test_points_from_csv_and_geojson_files(tmp_path: Path) -> None:

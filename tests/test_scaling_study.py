@@ -49,7 +49,6 @@ def test_scaling_study_quick(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) ->
     assert kept["written_by"]["commit"] == summary["provenance"]["commit"]
 
 
-
 def test_one_plan_is_measured_in_process() -> None:
     sc = scaling_scenario(30, 40, 2, seed=0)
     gated = time_plan(sc, "kalman", "auto", 5)

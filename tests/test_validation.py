@@ -628,6 +628,12 @@ PLAN_FILES = [
         '"geometry": {"coordinates": [[1]]}}]}',
         "finite",
     ),
+    (
+        "g.geojson",
+        '{"pmht_opt": {"frame": "plane"}, "features": [{"properties": {"kind": "path", "platform": 0}, '
+        '"geometry": {"type": "MultiLineString", "coordinates": [[[0, 0], [1, 1]], [[1, 1]]]}}]}',
+        "fewer than two positions",
+    ),
     ("c.csv", b"\xff\xfe", "cannot read"),
     ("p.plan", b"\xff\xfe", "cannot read"),
 ]

@@ -13,10 +13,13 @@ import os
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from pmht_opt import validation
+from pmht_opt.constraints import SpeedLimit
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.io import Mission, export_csv, export_geojson, export_qgc_plan, qgc_paths
+from pmht_opt.io.qgc import ENDS, SOURCES, PlanFiles
 from pmht_opt.result import PlanResult
 from pmht_opt.validation import writing
 
@@ -101,7 +104,7 @@ class Outputs:
             out.exports.append(path)
         if getattr(args, "animate", None) is not None:
             out.animation = check_output("--animate", args.animate, {".gif"}, "animation")
-        _check_flight(args, any(p.suffix.lower() == ".plan" for p in out.exports))
+        _check_flight(args, any(p.suffix.lower() == ".plan" for p in out.exports), mission)
         return out
 
     def write(self, result: PlanResult, mission: Mission, args: argparse.Namespace) -> None:
@@ -127,20 +130,62 @@ class Outputs:
             write_text(self.json, json.dumps(payload) + "\n")
             print(f"metrics and paths: {self.json}")
         for path in self.exports:
-            for file in _export(result, mission, path, args):
-                print(f"{EXPORTS[path.suffix.lower()]}: {file}")
+            files = _export(result, mission, path, args)
+            flights = files.flights if isinstance(files, PlanFiles) else ()
+            for k, file in enumerate(files):
+                print(f"{EXPORTS[path.suffix.lower()]}: {file}{_flight_text(flights[k]) if flights else ''}")
 
 
-def _check_flight(args: argparse.Namespace, plan_export: bool) -> None:
-    """``--altitude`` and ``--speed`` checked before planning: non-negative numbers, and only with a
-    ``.plan`` export (the one output they change), so that neither is silently ignored."""
-    for flag, name in (("--altitude", "altitude"), ("--speed", "speed")):
+def _flight_text(flight: Any) -> str:
+    """What a platform's exported flight is, in a few words (:class:`pmht_opt.io.qgc.Flight`)."""
+    route = flight.route
+    added = f", {route.added} added to keep the plan's promises" if route.added else ""
+    return (
+        f" ({len(route.waypoints)} waypoints{added}; {flight.speed:g} m/s; ends {flight.end}; legs within "
+        f"{flight.deviation:.2f} m of the planned path)"
+    )
+
+
+def _check_flight(args: argparse.Namespace, plan_export: bool, mission: Mission | None) -> None:
+    """The options of ``.plan`` exports checked before planning: ``--altitude`` and ``--speed``
+    non-negative numbers, ``--end`` and ``--waypoints`` one of their choices (``tour`` only for the
+    coverage planner, the one with a tour), and each only with a ``.plan`` export (the one output they
+    change), so that none is silently ignored."""
+    for flag, name in (
+        ("--altitude", "altitude"),
+        ("--speed", "speed"),
+        ("--end", "end"),
+        ("--waypoints", "waypoints"),
+    ):
         value = getattr(args, name, None)
         if value is None:
             continue
-        validation.real(flag, value, ConfigError, 0.0)
+        if name in ("end", "waypoints"):
+            choices = ENDS if name == "end" else SOURCES
+            if value not in choices:
+                raise ConfigError(f"{flag}: expected one of {', '.join(choices)}, got {value!r}.")
+        else:
+            validation.real(flag, value, ConfigError, 0.0)
         if not plan_export:
             raise ConfigError(f"{flag}: applies to QGroundControl exports only; add --export FILE.plan.")
+    speed = getattr(args, "speed", None)
+    if mission is not None and speed is not None:
+        for con in mission.constraints:
+            if not isinstance(con, SpeedLimit) or con.soft:
+                continue
+            for m in con.applies_to(mission.scenario):
+                limit = con.limit_for(m)
+                if speed > limit:
+                    raise ConfigError(
+                        f"--speed: {speed:g} m/s is above platform {m}'s speed limit {limit:g} m/s, "
+                        "which the plan keeps; give at most the limit, or leave --speed out to fly at it."
+                    )
+    method = mission.planner.method if mission is not None else "pmht"
+    if getattr(args, "waypoints", None) == "tour" and method != "coverage":
+        raise ConfigError(
+            f"--waypoints tour: the {method} planner draws no straight-line tour; only the coverage "
+            "planner does (--planner coverage), or export the plan's own waypoints (--waypoints plan)."
+        )
 
 
 def _export(result: PlanResult, mission: Mission, path: Path, args: argparse.Namespace) -> list[Path]:
@@ -157,4 +202,6 @@ def _export(result: PlanResult, mission: Mission, path: Path, args: argparse.Nam
         mission.origin,
         altitude=args.altitude if args.altitude is not None else mission.altitude,
         speed=args.speed,
+        end=args.end if args.end is not None else mission.end,
+        source=args.waypoints or "plan",
     )

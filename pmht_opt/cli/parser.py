@@ -175,7 +175,23 @@ def _add_plan(sub: Subparsers[argparse.ArgumentParser]) -> None:
         "--speed",
         type=float,
         default=None,
-        help="ground speed of .plan exports, m/s (default: each platform's mean planned speed)",
+        help="ground speed of .plan exports, m/s, at most the plan's speed limit (default: the plan's "
+        "speed limit, else each platform's mean planned speed)",
+    )
+    plan.add_argument(
+        "--end",
+        default=None,
+        metavar="{rtl,land,hover}",
+        help="how .plan exports end: rtl (return to launch), land (at the last waypoint) or hover (hold "
+        "at the last waypoint) (default: the mission's [geo] end, else land where a route ends at its "
+        "start, rtl otherwise)",
+    )
+    plan.add_argument(
+        "--waypoints",
+        default=None,
+        metavar="{plan,tour}",
+        help="the waypoints of .plan exports: plan (points of the planned path, added to until every leg "
+        "keeps the plan's promises) or tour (the coverage planner's straight-line tour) (default: plan)",
     )
     plan.set_defaults(func=commands.plan_file)
 

@@ -4,7 +4,9 @@
   an optional geo origin, in TOML or JSON (:mod:`pmht_opt.io.mission`); :func:`plan_mission` and
   :func:`order_mission` run one as the library would.
 * :func:`export_csv`, :func:`export_geojson`, :func:`export_qgc_plan`: a plan as CSV (one row per
-  platform and step), GeoJSON (RFC 7946) and QGroundControl ``.plan`` missions.
+  platform and step), GeoJSON (RFC 7946, cut at the antimeridian, with the plan's zones, areas and
+  footprints) and QGroundControl ``.plan`` missions whose legs, as flown, keep the plan's promises
+  (:mod:`pmht_opt.io.flight` measures them, :mod:`pmht_opt.io.waypoints` chooses the waypoints).
 * :func:`read_points`: locales and starts from CSV or GeoJSON; :func:`read_plan_csv`,
   :func:`read_geojson_paths` and :func:`read_qgc_plan` read exported plans back.
 * :func:`example_mission`: the missions shipped with the package.

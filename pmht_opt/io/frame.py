@@ -12,6 +12,9 @@ from pmht_opt.io import fields
 
 #: Decimal places of degrees written to files (1e-9 degrees: 0.1 mm).
 GEO_DECIMALS = 9
+#: How far (m) that rounding moves a point at most: half of 1e-9 degrees of latitude and of longitude
+#: (5.6e-5 m each at most), 7.9e-5 m together, rounded up.
+GEO_RESOLUTION = 1e-4
 
 
 class Frame:

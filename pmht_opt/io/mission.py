@@ -18,6 +18,7 @@ more parts: ``[[constraints]]`` tables (:mod:`pmht_opt.io.constraints`), a ``[pl
     [geo]
     origin = [-35.3632, 149.1652]    # [lat, lon], WGS84 degrees
     altitude = 40.0                  # m above the take-off point, for exported flight plans
+    end = "land"                     # how exported flight plans end: "rtl", "land" or "hover"
 
     [planner]
     return_to_base = true
@@ -55,6 +56,7 @@ from pmht_opt.io.constraints import read_constraint, write_constraint
 from pmht_opt.io.frame import Frame
 from pmht_opt.io.points import read_points, read_radii
 from pmht_opt.io.settings import PlannerSettings, read_settings
+from pmht_opt.io.waypoints import ENDS
 from pmht_opt.scenario import Scenario
 from pmht_opt.toml_writer import dumps
 from pmht_opt.validation import writing
@@ -88,6 +90,9 @@ class Mission:
         True when the file gave no ``bounds``, so the scenario's are the locales' bounding box.
     source
         The file the mission was read from, if any.
+    end
+        How exported flight plans end (:func:`~pmht_opt.io.export_qgc_plan`): ``"rtl"``, ``"land"``
+        or ``"hover"``; ``None``: landing where a route ends at its start, else a return to launch.
     """
 
     scenario: Scenario
@@ -97,6 +102,7 @@ class Mission:
     altitude: float = DEFAULT_ALTITUDE
     bounds_assumed: bool = False
     source: Path | None = None
+    end: str | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.scenario, Scenario):
@@ -107,6 +113,8 @@ class Mission:
         check_origin(self.origin)
         limit = validation.COORDINATE_MAX
         self.altitude = validation.real("altitude", self.altitude, ConfigError, 0.0, limit)
+        if self.end is not None and (not isinstance(self.end, str) or self.end not in ENDS):
+            raise ConfigError(f"end: expected one of {', '.join(ENDS)} or None, got {self.end!r}.")
         try:
             self.planner.check_r(self.scenario.r)
         except ConfigError as err:
@@ -145,6 +153,8 @@ class Mission:
         out["starts"] = frame.out_points(sc.starts) if sc.starts.shape[1] == 2 else sc.starts.tolist()
         if self.origin is not None:
             out["geo"] = {"origin": [self.origin.lat, self.origin.lon], "altitude": self.altitude}
+            if self.end is not None:
+                out["geo"]["end"] = self.end
         out["planner"] = self.planner.to_table()
         if self.constraints:
             out["constraints"] = [write_constraint(c, frame) for c in self.constraints]
@@ -232,11 +242,14 @@ def _model_defaults(kwargs: dict[str, Any]) -> None:
         kwargs["q"] = float(min(max(q, lo), hi))
 
 
-def _read_geo(data: Any) -> tuple[GeoOrigin, float]:
+def _read_geo(data: Any) -> tuple[GeoOrigin, float, str | None]:
     table = fields.table("geo", data)
-    unknown = sorted(set(table) - {"origin", "altitude"})
+    unknown = sorted(set(table) - {"origin", "altitude", "end"})
     if unknown:
-        raise ScenarioError(f"geo: unknown key {unknown[0]!r}; it takes origin, altitude.")
+        raise ScenarioError(f"geo: unknown key {unknown[0]!r}; it takes origin, altitude, end.")
+    end = table.get("end")
+    if end is not None and (not isinstance(end, str) or end not in ENDS):
+        raise ScenarioError(f"geo.end: expected one of {', '.join(ENDS)}, got {fields.describe(end)}.")
     if "origin" not in table:
         raise ScenarioError("geo: no origin; expected origin = [lat, lon] in degrees.")
     origin = fields.numbers("geo.origin", table["origin"], 1)
@@ -249,7 +262,7 @@ def _read_geo(data: Any) -> tuple[GeoOrigin, float]:
             f"got {altitude:g}."
         )
     try:
-        return GeoOrigin(origin[0], origin[1]), altitude
+        return GeoOrigin(origin[0], origin[1]), altitude, end
     except ScenarioError as err:
         raise ScenarioError(f"geo.{err}") from None
 
@@ -274,7 +287,7 @@ def mission_from_dict(
         raise ScenarioError(
             f"unknown field {unknown[0]!r}; a mission has {', '.join(SCENARIO_FIELDS + MISSION_PARTS)}."
         )
-    origin, altitude = _read_geo(top["geo"]) if "geo" in top else (None, DEFAULT_ALTITUDE)
+    origin, altitude, end = _read_geo(top["geo"]) if "geo" in top else (None, DEFAULT_ALTITUDE, None)
     frame = Frame(origin)
     scenario, assumed = _read_scenario(top, frame, Path(base))
     raw = top.get("constraints", [])
@@ -292,7 +305,7 @@ def mission_from_dict(
             planner.check_r(scenario.r)
         except ConfigError as err:
             raise ConfigError(f"planner.{err}") from None
-    mission = Mission(scenario, constraints, PlannerSettings(), origin, altitude, assumed, source)
+    mission = Mission(scenario, constraints, PlannerSettings(), origin, altitude, assumed, source, end)
     mission.planner = planner  # checked above, or by a caller that replaces its schedule
     return mission
 

@@ -1,4 +1,4 @@
-"""Plans as QGroundControl missions: one ``.plan`` file per platform.
+"""Plans as QGroundControl missions: one ``.plan`` file per platform, flown as the plan promises.
 
 QGroundControl's plan file is JSON: ``fileType = "Plan"``, ``version = 1``, ``groundStation``, a
 ``mission`` object (``version = 2``, ``firmwareType`` and ``vehicleType`` as MAVLink's
@@ -12,19 +12,28 @@ A platform's mission is:
 1. a take-off (``MAV_CMD_NAV_TAKEOFF``, 22) at its start, for vehicles that fly;
 2. a speed change (``MAV_CMD_DO_CHANGE_SPEED``, 178: ground speed, m/s);
 3. waypoints (``MAV_CMD_NAV_WAYPOINT``, 16: ``params = [hold, acceptance radius, pass radius, yaw,
-   lat, lon, alt]``) along the planned path;
-4. optionally a landing (``MAV_CMD_NAV_LAND``, 21) at its end.
+   lat, lon, alt]``): points of the planned path or the coverage planner's tour
+   (:mod:`pmht_opt.io.waypoints`);
+4. its end (``end``): a return to launch (``MAV_CMD_NAV_RETURN_TO_LAUNCH``, 20), a landing at the last
+   waypoint (``MAV_CMD_NAV_LAND``, 21), or nothing, so that the vehicle holds at the last waypoint
+   ("hover"). By default it lands where the route already ends at its start (a return to base) and
+   returns to launch otherwise.
 
-The waypoints are points of the planned path itself: its end, the point nearest each locale it is
-assigned, and as many more as keep the straight legs between waypoints within ``tolerance`` of the
-path (Douglas-Peucker simplification). A flight plan has no clock: the vehicle flies the legs at the
-set speed, by default the platform's mean planned speed, so it keeps the plan's route but not its
-timing.
+The vehicle flies straight legs between the waypoints, so the legs, not the planned samples, must
+keep the plan's promises: every leg, and a return to launch's straight leg home, stays out of every
+keep-out zone and inside every area, and with the planners that promise coverage the legs pass within
+each site's radius. :mod:`pmht_opt.io.flight` measures that on the coordinates as written; where a
+leg breaks a promise more waypoints are taken, and where none can keep it the export is refused
+(:class:`~pmht_opt.exceptions.SolverError`), before any file is written.
+
+A flight plan has no clock: the vehicle flies the legs at one speed, by default the plan's speed limit
+(the smallest :class:`~pmht_opt.constraints.SpeedLimit` that binds the platform: the plan flies no
+faster, and covers its route in the least time at it), else the platform's mean planned speed. It keeps
+the plan's route but not its timing.
 """
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
 from dataclasses import dataclass
@@ -35,14 +44,14 @@ import numpy as np
 
 from pmht_opt import validation
 from pmht_opt.exceptions import ConfigError, ScenarioError
-from pmht_opt.geometry import point_polyline_distance
 from pmht_opt.geometry.earth import GeoOrigin, check_origin
 from pmht_opt.io.frame import GEO_DECIMALS
+from pmht_opt.io.waypoints import ENDS, SOURCES, Flight, checked_speed, flights, simplify
 from pmht_opt.result import check_plan
 from pmht_opt.validation import file_path, writing
 
 #: MAVLink commands used.
-NAV_WAYPOINT, NAV_LAND, NAV_TAKEOFF, DO_CHANGE_SPEED = 16, 21, 22, 178
+NAV_WAYPOINT, NAV_RETURN_TO_LAUNCH, NAV_LAND, NAV_TAKEOFF, DO_CHANGE_SPEED = 16, 20, 21, 22, 178
 #: ``MAV_FRAME_MISSION`` (commands without a position) and ``MAV_FRAME_GLOBAL_RELATIVE_ALT``.
 FRAME_MISSION, FRAME_RELATIVE_ALT = 2, 3
 #: ``MAV_AUTOPILOT`` values by name.
@@ -62,26 +71,16 @@ MISSION_KEYS = (
 )
 ITEM_KEYS = ("autoContinue", "command", "doJumpId", "frame", "params", "type")
 
-
-def simplify(points: np.ndarray, tolerance: float, keep: Any = ()) -> np.ndarray:
-    """Indices of ``points (K, 2)`` whose polyline stays within ``tolerance`` of every point
-    (Douglas-Peucker), always including the first, the last and those in ``keep``, in order."""
-    pts = np.asarray(points, dtype=float)
-    chosen = {0, len(pts) - 1, *(int(k) for k in keep)}
-    anchors = sorted(chosen)
-    stack = list(itertools.pairwise(anchors))
-    while stack:
-        i, j = stack.pop()
-        if j - i < 2:
-            continue
-        seg = pts[i : j + 1]
-        dist = point_polyline_distance(seg[1:-1], np.vstack([seg[0], seg[-1]]))
-        k = int(np.argmax(dist))
-        if dist[k] > tolerance:
-            mid = i + 1 + k
-            chosen.add(mid)
-            stack += [(i, mid), (mid, j)]
-    return np.array(sorted(chosen), dtype=np.intp)
+__all__ = [
+    "ENDS",
+    "SOURCES",
+    "Flight",
+    "PlanFiles",
+    "export_qgc_plan",
+    "qgc_paths",
+    "read_qgc_plan",
+    "simplify",
+]
 
 
 def _item(
@@ -112,88 +111,127 @@ class _Flight:
     tolerance: float | None
     acceptance_radius: float
     takeoff: bool | None
-    land: bool
+    end: str | None
     firmware: str
     vehicle: str
+    source: str
 
     def __post_init__(self) -> None:
-        if not isinstance(self.firmware, str) or self.firmware not in FIRMWARE:
-            raise ConfigError(f"firmware: expected one of {', '.join(FIRMWARE)}, got {self.firmware!r}.")
-        if not isinstance(self.vehicle, str) or self.vehicle not in VEHICLES:
-            raise ConfigError(f"vehicle: expected one of {', '.join(VEHICLES)}, got {self.vehicle!r}.")
-        for name, value in (("altitude", self.altitude), ("acceptance_radius", self.acceptance_radius)):
-            validation.real(name, value, ConfigError, 0.0)
+        for name, value, choices in (
+            ("firmware", self.firmware, FIRMWARE),
+            ("vehicle", self.vehicle, VEHICLES),
+            ("end", self.end, ENDS),
+            ("source", self.source, SOURCES),
+        ):
+            if not (name == "end" and value is None) and (not isinstance(value, str) or value not in choices):
+                raise ConfigError(f"{name}: expected one of {', '.join(choices)}, got {value!r}.")
+        for name, number in (("altitude", self.altitude), ("acceptance_radius", self.acceptance_radius)):
+            validation.real(name, number, ConfigError, 0.0)
         if self.speed is not None:
-            _checked_speed(self.speed)
+            checked_speed(self.speed)
         if self.tolerance is not None:
             validation.real("tolerance", self.tolerance, ConfigError, 0.0, lo_open=True)
-        for name, flag in (("takeoff", self.takeoff), ("land", self.land)):
-            if not (isinstance(flag, (bool, np.bool_)) or (name == "takeoff" and flag is None)):
-                raise ConfigError(f"{name}: expected True or False, got {flag!r}.")
+        if not (isinstance(self.takeoff, (bool, np.bool_)) or self.takeoff is None):
+            raise ConfigError(f"takeoff: expected True or False, got {self.takeoff!r}.")
 
 
-def _checked_speed(speed: Any) -> float:
-    """``speed`` (m/s), given or each platform's mean, if it is a non-negative number."""
-    return validation.real("speed", speed, ConfigError, 0.0)
+def _end(end: str | None, land: Any) -> str | None:
+    """``end`` with the older ``land`` folded in: ``land=True`` is ``end="land"``, ``land=False`` is
+    ``end="hover"`` (the mission stops at its last waypoint, as ``land=False`` always meant)."""
+    if land is None:
+        return end
+    if not isinstance(land, (bool, np.bool_)):
+        raise ConfigError(f"land: expected True or False (or None), got {land!r}.")
+    older = "land" if land else "hover"
+    if end is not None and end != older:
+        raise ConfigError(f"land: land={bool(land)} asks for end {older!r}, but end={end!r}; give end alone.")
+    return older
 
 
-def platform_plan(result: Any, platform: int, origin: GeoOrigin, flight: _Flight) -> dict[str, Any]:
-    """The QGroundControl plan (a dict) of one platform of ``result``; see :func:`export_qgc_plan`."""
-    sc = result.scenario
-    path = np.asarray(result.positions[platform])
-    tol = float(sc.radii.min()) / 10 if flight.tolerance is None else float(flight.tolerance)
+def _through(origin: GeoOrigin) -> Any:
+    """Points of the plane as a file holds them: to degrees, rounded, and back."""
+    plane = origin.plane
+
+    def through(points: np.ndarray) -> np.ndarray:
+        return plane.to_local(np.round(plane.to_geodetic(np.asarray(points, float)), GEO_DECIMALS))
+
+    return through
+
+
+class PlanFiles(list[Path]):
+    """The files :func:`export_qgc_plan` wrote, in platform order (a list of paths), with each
+    platform's :class:`~pmht_opt.io.waypoints.Flight` in :attr:`flights`."""
+
+    def __init__(self, files: list[Path], flights: list[Flight]) -> None:
+        super().__init__(files)
+        self.flights = tuple(flights)
+
+    @property
+    def deviation(self) -> np.ndarray:
+        """``(M,)`` the largest distance (m) between each platform's legs and its planned path."""
+        return np.array([f.deviation for f in self.flights])
+
+
+def qgc_flights(result: Any, origin: GeoOrigin, options: _Flight) -> list[Flight]:
+    """Every platform's :class:`~pmht_opt.io.waypoints.Flight` under ``options``, checked against the
+    plan's promises on the coordinates as the file holds them (module notes)."""
+    tol = float(result.scenario.radii.min()) / 10 if options.tolerance is None else float(options.tolerance)
     if not (math.isfinite(tol) and tol > 0):
-        raise ConfigError(f"tolerance: expected a positive number of metres, got {flight.tolerance!r}.")
-    mine = np.flatnonzero(np.asarray(result.assignment) == platform)
-    nearest = [int(np.argmin(np.hypot(*(path - sc.locales[n]).T))) for n in mine]
-    steps = simplify(path, tol, keep=nearest)
-    seg = np.diff(path, axis=0)
-    length = float(np.hypot(seg[:, 0], seg[:, 1]).sum())
-    speed = _checked_speed(length / (sc.horizon * sc.dt) if flight.speed is None else flight.speed)
-    latlon = np.round(origin.plane.to_geodetic(path[steps]), GEO_DECIMALS)
-    flies = flight.vehicle not in ("rover", "boat")
-    cruise = round(speed, 3) if speed > 0 else 1.0
+        raise ConfigError(f"tolerance: expected a positive number of metres, got {options.tolerance!r}.")
+    return flights(result, _through(origin), tol, speed=options.speed, end=options.end, source=options.source)
+
+
+def platform_plan(flight: Flight, origin: GeoOrigin, options: _Flight) -> dict[str, Any]:
+    """The QGroundControl plan (a dict) of one platform's :class:`~pmht_opt.io.waypoints.Flight`; see
+    :func:`export_qgc_plan`."""
+    latlon = np.round(origin.plane.to_geodetic(flight.route.waypoints), GEO_DECIMALS)
+    flies = options.vehicle not in ("rover", "boat")
+    cruise = round(flight.speed, 3) if flight.speed > 0 else 1.0
+    takeoff = flies if options.takeoff is None else bool(options.takeoff)
     return {
         "fileType": "Plan",
         "version": 1,
         "groundStation": "pmht-opt",
         "mission": {
             "version": 2,
-            "firmwareType": FIRMWARE[flight.firmware],
-            "vehicleType": VEHICLES[flight.vehicle],
+            "firmwareType": FIRMWARE[options.firmware],
+            "vehicleType": VEHICLES[options.vehicle],
             "cruiseSpeed": cruise,
             "hoverSpeed": cruise,
             "globalPlanAltitudeMode": 1,
             "plannedHomePosition": [*latlon[0].tolist(), 0],
-            "items": _items(latlon, speed, flies if flight.takeoff is None else flight.takeoff, flight),
+            "items": _items(latlon, flight, takeoff, options),
         },
         "geoFence": {"circles": [], "polygons": [], "version": 2},
         "rallyPoints": {"points": [], "version": 2},
     }
 
 
-def _items(latlon: np.ndarray, speed: float, takeoff: bool, flight: _Flight) -> list[dict[str, Any]]:
+def _items(latlon: np.ndarray, flight: Flight, takeoff: bool, options: _Flight) -> list[dict[str, Any]]:
     """The mission items (module notes) through the waypoints ``latlon`` (degrees), numbered from 1."""
-    altitude = flight.altitude
+    altitude = options.altitude
     items: list[dict[str, Any]] = []
-    home = latlon[0].tolist()
+
+    def add(command: int, frame: int, params: list[Any], alt: float | None = None) -> None:
+        items.append(_item(len(items) + 1, command, frame, params, alt))
+
     if takeoff:
-        items.append(
-            _item(len(items) + 1, NAV_TAKEOFF, FRAME_RELATIVE_ALT, [0, 0, 0, None, *home, altitude], altitude)
-        )
-    if speed > 0:
-        items.append(
-            _item(len(items) + 1, DO_CHANGE_SPEED, FRAME_MISSION, [1, round(speed, 3), -1, 0, 0, 0, 0])
-        )
+        add(NAV_TAKEOFF, FRAME_RELATIVE_ALT, [0, 0, 0, None, *latlon[0].tolist(), altitude], altitude)
+    if flight.speed > 0:
+        add(DO_CHANGE_SPEED, FRAME_MISSION, [1, round(flight.speed, 3), -1, 0, 0, 0, 0])
     for k, (lat, lon) in enumerate(latlon.tolist()):
         if k == 0 and takeoff:
             continue  # the take-off is there
-        params = [0, flight.acceptance_radius, 0, None, lat, lon, altitude]
-        items.append(_item(len(items) + 1, NAV_WAYPOINT, FRAME_RELATIVE_ALT, params, altitude))
-    if flight.land:
-        items.append(
-            _item(len(items) + 1, NAV_LAND, FRAME_RELATIVE_ALT, [0, 0, 0, None, *latlon[-1].tolist(), 0], 0.0)
+        add(
+            NAV_WAYPOINT,
+            FRAME_RELATIVE_ALT,
+            [0, options.acceptance_radius, 0, None, lat, lon, altitude],
+            altitude,
         )
+    if flight.end == "land":
+        add(NAV_LAND, FRAME_RELATIVE_ALT, [0, 0, 0, None, *latlon[-1].tolist(), 0], 0.0)
+    elif flight.end == "rtl":
+        add(NAV_RETURN_TO_LAUNCH, FRAME_MISSION, [0, 0, 0, 0, 0, 0, 0])
     return items
 
 
@@ -214,11 +252,14 @@ def export_qgc_plan(
     tolerance: float | None = None,
     acceptance_radius: float = 0.0,
     takeoff: bool | None = None,
-    land: bool = False,
+    end: str | None = None,
+    land: bool | None = None,
     firmware: str = "px4",
     vehicle: str = "multirotor",
-) -> list[Path]:
-    """Write one QGroundControl ``.plan`` per platform of ``result`` (module notes).
+    source: str = "plan",
+) -> PlanFiles:
+    """Write one QGroundControl ``.plan`` per platform of ``result`` whose legs keep the plan's
+    promises (module notes).
 
     Parameters
     ----------
@@ -232,40 +273,65 @@ def export_qgc_plan(
     altitude
         Flight altitude, metres above the home position.
     speed
-        Ground speed (m/s) of every leg; ``None``: each platform's mean planned speed.
+        Ground speed (m/s) of every leg, at most the plan's speed limit; ``None``: the plan's speed
+        limit (the smallest that binds the platform), else each platform's mean planned speed.
     tolerance
-        Largest distance (m) between the path and the legs between waypoints; ``None``: a tenth of
-        the scenario's coverage radius.
+        Largest distance (m) between the path and the legs of the simplification (``source="plan"``),
+        before waypoints are added to keep the promises; ``None``: a tenth of the smallest coverage
+        radius.
     acceptance_radius
         Each waypoint's acceptance radius (m); 0 leaves it to the autopilot.
-    takeoff, land
-        Start with a take-off (default: for vehicles that fly), end with a landing.
+    takeoff
+        Start with a take-off (default: for vehicles that fly).
+    end
+        ``"rtl"`` (return to launch), ``"land"`` (at the last waypoint) or ``"hover"`` (hold at the
+        last waypoint); ``None``: ``"land"`` where the route ends at its start, else ``"rtl"``.
+    land
+        The older form of ``end``: ``True`` is ``"land"``, ``False`` is ``"hover"``; ``None`` leaves
+        ``end`` to say. Contradicting ``end`` is an error.
     firmware, vehicle
         ``"px4"``, ``"ardupilot"`` or ``"generic"``; ``"multirotor"``, ``"fixedwing"``, ``"rover"``
         or ``"boat"``.
+    source
+        ``"plan"``: waypoints on the planned path; ``"tour"``: the coverage planner's straight-line
+        tour (:mod:`pmht_opt.io.waypoints`).
 
     Returns
     -------
-    list of Path
-        The files written, in platform order.
+    PlanFiles
+        The files written, in platform order (a list of paths), with each platform's
+        :class:`~pmht_opt.io.waypoints.Flight` (``.flights``: waypoints, speed, end, and the largest
+        distance between the legs and the planned path, ``.deviation``).
+
+    Raises
+    ------
+    ConfigError
+        An option out of range, naming it (``source="tour"`` without a tour, a speed above the
+        plan's limit).
+    SolverError
+        No waypoints keep a promise: names the platform, the leg and the constraint. Nothing is written.
     """
     check_plan(result)
     if check_origin(origin) is None:
         raise ConfigError("origin: a QGroundControl plan needs a geo-referenced mission (an origin).")
-    flight = _Flight(altitude, speed, tolerance, acceptance_radius, takeoff, land, firmware, vehicle)
+    options = _Flight(
+        altitude, speed, tolerance, acceptance_radius, takeoff, _end(end, land), firmware, vehicle, source
+    )
     files = qgc_paths(path, result.scenario.n_platforms)
-    # Every platform's plan first: a refusal (a tolerance, a speed) leaves no file behind.
-    plans = [platform_plan(result, m, origin, flight) for m in range(len(files))]
+    # Every platform's plan first: a refusal (an option, a broken promise) leaves no file behind.
+    flights = qgc_flights(result, origin, options)
+    plans = [platform_plan(f, origin, options) for f in flights]
     for file, plan in zip(files, plans, strict=True):
         with writing(file) as out_file:
             out_file.write_text(json.dumps(plan, indent=2) + "\n", encoding="utf-8")
-    return list(files)
+    return PlanFiles(list(files), flights)
 
 
 def read_qgc_plan(path: str | Path) -> dict[str, Any]:
     """The parts of a ``.plan`` file a check needs: ``waypoints (K, 3)`` (lat, lon, alt of the
-    waypoint and take-off items, in order), ``speed`` (the last speed change, or ``None``) and
-    ``home``."""
+    waypoint and take-off items, in order), ``speed`` (the last speed change, or ``None``), ``home``
+    and ``end`` (``"rtl"``, ``"land"`` or ``"hover"``: the last item, or ``None`` for a mission without
+    waypoints)."""
     path = file_path("path", path)
     try:
         plan = json.loads(path.read_text(encoding="utf-8"))
@@ -276,15 +342,19 @@ def read_qgc_plan(path: str | Path) -> dict[str, Any]:
         raise ScenarioError(f"{path.name}: not a QGroundControl plan (fileType {kind!r}).")
     try:
         mission = plan["mission"]
-        points, speed = [], None
+        points, speed, end = [], None, None
         for item in mission["items"]:
-            if item["command"] in (NAV_TAKEOFF, NAV_WAYPOINT):
+            command = item["command"]
+            if command in (NAV_TAKEOFF, NAV_WAYPOINT):
                 point = [float(v) for v in item["params"][4:7]]
                 if len(point) != 3:
                     raise IndexError("a waypoint's params hold no latitude, longitude and altitude")
                 points.append(point)
-            elif item["command"] == DO_CHANGE_SPEED:
+                end = "hover"
+            elif command == DO_CHANGE_SPEED:
                 speed = float(item["params"][1])
+            elif command in (NAV_LAND, NAV_RETURN_TO_LAUNCH):
+                end = "land" if command == NAV_LAND else "rtl"
         home = mission["plannedHomePosition"]
         waypoints = np.asarray(points, dtype=float).reshape(-1, 3)
     except (KeyError, IndexError, TypeError, ValueError) as err:
@@ -292,4 +362,4 @@ def read_qgc_plan(path: str | Path) -> dict[str, Any]:
             f"{path.name}: not a readable QGroundControl plan (its mission, items or their params are "
             f"malformed: {type(err).__name__} {err})."
         ) from None
-    return {"waypoints": waypoints, "speed": speed, "home": home}
+    return {"waypoints": waypoints, "speed": speed, "home": home, "end": end}

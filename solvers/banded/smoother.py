@@ -55,9 +55,7 @@ class BandedSmoother:
     copy per thread): 96 MB for ``n = 3``, ``T = 5000``, ``B = 20``.
     """
 
-    def __init__(
-        self, F: ArrayLike, Q: ArrayLike, h: ArrayLike, horizon: int, batch: int
-    ) -> None:
+    def __init__(self, F: ArrayLike, Q: ArrayLike, h: ArrayLike, horizon: int, batch: int) -> None:
         F = np.asarray(F, dtype=float)
         if F.ndim != 2 or F.shape[0] != F.shape[1] or F.shape[0] < 1:
             raise ProblemError(f"F must be a square matrix, got shape {F.shape}.")

@@ -108,9 +108,9 @@ def tolerance(name: str) -> float:
     if kind in ("constrained", "visitall", "smoothed"):
         return POSITION_TOL["interior point, constrained"]  # "auto" with constraints: Clarabel
     backend = name.split("-")[1]
-    return POSITION_TOL[{"kalman": "exact", "clarabel": "interior point", "cvxpy": "interior point"}.get(
-        backend, "admm"
-    )]
+    return POSITION_TOL[
+        {"kalman": "exact", "clarabel": "interior point", "cvxpy": "interior point"}.get(backend, "admm")
+    ]
 
 
 def run_case(name: str) -> dict[str, np.ndarray]:
