@@ -7,17 +7,24 @@ run the loop of :class:`~pmht_opt.em.EMRun` to its end (:func:`run_em`).
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from pmht_opt import validation
-from pmht_opt.em import EMCallbacks, EMRun, IterationRecord
-from pmht_opt.exceptions import ConfigError, PlanWarning
+from pmht_opt.constraints.visits import VisitAll
+from pmht_opt.em import EMCallbacks, EMRun
+from pmht_opt.exceptions import PlanWarning, PmhtOptError, ScheduleError
 from pmht_opt.planners.base import Planner
+from pmht_opt.planners.coverage.method import CoverageOptions, plan_cover
+from pmht_opt.planners.progress import observing, with_progress
+from pmht_opt.planners.smoothed import SmoothedOptions, SmoothedPlanner
+from pmht_opt.planners.windows import window_priors, witness_visits
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario
 from pmht_opt.settings import (
@@ -86,42 +93,6 @@ class PMHTPlanner(Planner):
         )
 
 
-def observing(callbacks: EMCallbacks | None, callback: ProgressObserver | None) -> EMCallbacks | None:
-    """``callbacks`` with ``callback(progress)`` also called after every iteration, with the
-    :class:`~pmht_opt.stopping.EMProgress` the stopping criteria see."""
-    if callback is None:
-        return callbacks
-
-    def report(run: EMRun, record: IterationRecord) -> None:
-        assert run.progress is not None  # formed before the iteration's observers are called
-        callback(run.progress)
-
-    return _also_after(callbacks, report)
-
-
-def with_progress(callbacks: EMCallbacks | None, callback: ProgressCallback | None) -> EMCallbacks | None:
-    """``callbacks`` with ``callback(iteration, objective)`` also called after every iteration (the
-    callback of :func:`plan_pmht` and :func:`~pmht_opt.plan_smoothed`)."""
-    if callback is None:
-        return callbacks
-    if not callable(callback):
-        raise ConfigError(f"callback: expected a callable(iteration, objective), got {callback!r}.")
-    return _also_after(callbacks, lambda run, record: callback(record.iteration, record.objective))
-
-
-def _also_after(callbacks: EMCallbacks | None, fn: Callable[[EMRun, IterationRecord], object]) -> EMCallbacks:
-    """``callbacks`` with ``fn(run, record)`` called after every iteration, after their own."""
-    base = callbacks if callbacks is not None else EMCallbacks()
-    inner = base.after_iteration
-
-    def after(run: EMRun, record: IterationRecord) -> None:
-        if inner is not None:
-            inner(run, record)
-        fn(run, record)
-
-    return EMCallbacks(base.after_estep, base.after_mstep, after)
-
-
 def run_em(
     scenario: Scenario,
     config: PMHTConfig,
@@ -137,16 +108,30 @@ def run_em(
     A plan fitted at another ``r`` than the scenario's (a criterion other than the iteration limit
     stopped the run during annealing) is returned with a :class:`~pmht_opt.exceptions.PlanWarning`; its
     history says at which ``r`` (:attr:`~pmht_opt.IterationHistory.fitted_r`).
+
+    When an iteration's schedule cannot be met (:class:`~pmht_opt.exceptions.ScheduleError`: the visit
+    steps or obstacle sides the EM chose, not the constraints themselves), the EM starts again from
+    plans that meet the constraints (:func:`restart_paths`), without annealing and with its visits kept
+    where that plan makes them (:func:`_restarted`; a prior given here is replaced there). The plan
+    says so in ``extras["restarted"]``. Only if every restart fails does the error reach the caller,
+    saying what was tried.
     """
-    with EMRun(
-        scenario,
-        config,
-        time_prior=time_prior,
-        platform_prior=platform_prior,
-        initial_paths=initial_paths,
-        callbacks=callbacks,
-    ) as run:
-        result = run.run()
+
+    def once(paths: Any, cfg: PMHTConfig, times: Any, platforms: Any) -> PlanResult:
+        with EMRun(
+            scenario,
+            cfg,
+            time_prior=times,
+            platform_prior=platforms,
+            initial_paths=paths,
+            callbacks=callbacks,
+        ) as run:
+            return run.run()
+
+    try:
+        result = once(initial_paths, config, time_prior, platform_prior)
+    except ScheduleError as err:
+        result = _restarted(scenario, config, err, once)
     result.planner = planner
     fitted = result.history.fitted_r
     if not np.isclose(fitted, scenario.r, rtol=1e-12, atol=0.0):
@@ -158,6 +143,96 @@ def run_em(
             stacklevel=3,
         )
     return result
+
+
+def restart_paths(scenario: Scenario, settings: Settings) -> Iterator[tuple[str, PlanResult | PmhtOptError]]:
+    """Plans that meet ``settings``' constraints, for the EM to start again from: the coverage
+    planner's, then the smoothed planner's, each as ``(name, plan)`` or ``(name, the error it raised)``.
+
+    Both pass every locale within the radius the constraints' visits ask for
+    (:class:`~pmht_opt.constraints.VisitAll`; the scenario's coverage radius without one) and meet
+    every other hard constraint, checked on their positions like any plan. Made lazily: the second only
+    if the first did not serve.
+    """
+    visits = [c for c in settings.constraints if isinstance(c, VisitAll)]
+    others = tuple(c for c in settings.constraints if not isinstance(c, VisitAll))
+    covered = scenario.replace(coverage_radius=_radii(scenario, visits))
+    shared = dataclasses.replace(settings, constraints=others)
+    witnesses: tuple[tuple[str, Callable[[], PlanResult]], ...] = (
+        ("coverage", lambda: plan_cover(covered, shared, CoverageOptions())),
+        ("smoothed", lambda: _smoothed(covered, shared)),
+    )
+    for name, make in witnesses:
+        try:
+            yield name, make()
+        except PmhtOptError as err:  # no witness from this planner: its reason is reported
+            yield name, err
+
+
+def _smoothed(scenario: Scenario, settings: Settings) -> PlanResult:
+    planner = SmoothedPlanner()
+    return planner.run(scenario, settings, SmoothedOptions(), planner.default_stop(), None)
+
+
+def _restarted(
+    scenario: Scenario,
+    config: PMHTConfig,
+    first: ScheduleError,
+    once: Callable[[Any, PMHTConfig, Any, Any], PlanResult],
+) -> PlanResult:
+    """The EM run again from each of :func:`restart_paths` until one meets its schedules; else a
+    :class:`ScheduleError` saying what was tried.
+
+    With hard visits (:class:`~pmht_opt.constraints.VisitAll`) the restart also keeps each locale's
+    visit where the witness plan makes it (:func:`~pmht_opt.planners.windows.witness_visits`): on the
+    platform that passes it and at the steps where that platform is inside its disc, imposed from the
+    first iteration. Any
+    schedule the EM then chooses is one the witness meets as a whole, so the M-steps have a feasible
+    point; only obstacles, linearised at the iterate, can still fail.
+    """
+    visits = [c for c in config.constraints if isinstance(c, VisitAll) and not c.soft]
+    constraints = [_at_once(c) if c in visits else c for c in config.constraints]
+    plain = dataclasses.replace(config, anneal=None, constraints=constraints)
+    tried = []
+    for name, witness in restart_paths(scenario, config.settings):
+        if isinstance(witness, PmhtOptError):
+            tried.append(f"the {name} planner found no plan to start from ({witness})")
+            continue
+        priors: tuple[Any, Any] = (None, None)
+        if visits:
+            kept = witness_visits(scenario, witness.positions, _radii(scenario, visits))
+            priors = window_priors(scenario, *kept)
+        try:
+            result = once(witness.states, plain, *priors)
+        except ScheduleError as err:
+            tried.append(
+                f"from the {name} planner's plan, which meets them, the schedule failed again ({err})"
+            )
+            continue
+        result.extras["restarted"] = (
+            f"from the {name} planner's plan, without annealing"
+            + (", visits kept where that plan makes them" if visits else "")
+            + f", after the first run's schedule failed: {first}"
+        )
+        return result
+    raise ScheduleError(
+        f"{first} The EM was started again: {'; '.join(tried)}.", backend=first.backend
+    ) from first
+
+
+def _radii(scenario: Scenario, visits: Sequence[VisitAll]) -> np.ndarray:
+    """``(N,)`` the smallest radius any of ``visits`` asks of each locale (the scenario's without one)."""
+    radii = np.asarray(scenario.radii, dtype=float)
+    for v in visits:
+        radii = np.minimum(radii, v.radius_for(scenario))
+    return radii
+
+
+def _at_once(visit: VisitAll) -> VisitAll:
+    """``visit`` imposed whole from the first iteration (a restart begins on paths that meet it)."""
+    whole = copy.copy(visit)
+    whole.warmup, whole.ramp = 0, 0
+    return whole
 
 
 def plan_pmht(

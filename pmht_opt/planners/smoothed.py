@@ -12,6 +12,7 @@ ordered, so the returned paths pass the locales in tour order, guaranteed.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -21,13 +22,22 @@ import numpy as np
 from pmht_opt import validation
 from pmht_opt.constraints.blocks import DEFAULT_SIDES
 from pmht_opt.constraints.params import positive_number
+from pmht_opt.constraints.visits import VisitAll
 from pmht_opt.em import EMCallbacks, EMRun
-from pmht_opt.exceptions import ConfigError
+from pmht_opt.exceptions import ConfigError, PmhtOptError, ScheduleError
 from pmht_opt.ordering import TourResult, check_routes, order_locales
 from pmht_opt.planners.base import Planner, refuse_ignored
-from pmht_opt.planners.pmht import observing, with_progress
+from pmht_opt.planners.coverage.method import CoverageOptions, plan_cover
+from pmht_opt.planners.progress import observing, with_progress
 from pmht_opt.planners.routes import closed_routes, route_budgets
-from pmht_opt.planners.windows import SPLITS, TourVisits, polyline_start, sub_batches
+from pmht_opt.planners.windows import (
+    SPLITS,
+    TourVisits,
+    polyline_start,
+    sub_batches,
+    window_priors,
+    witness_visits,
+)
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario
 from pmht_opt.settings import PMHT_ITERATIONS, PMHTConfig, PMHTOptions, ProgressCallback, Settings
@@ -147,9 +157,17 @@ def smooth_tour(
     sides: int = DEFAULT_SIDES,
     snapshots: tuple[int, ...] = (),
     callbacks: EMCallbacks | None = None,
+    rescue: bool = False,
 ) -> PlanResult:
     """The smoothed plan of ``tour`` (:func:`plan_smoothed`, whose parameters these are), its EM run
-    stopped by ``stop``."""
+    stopped by ``stop``.
+
+    When the sub-batches cannot be met (:class:`~pmht_opt.exceptions.ScheduleError`: the windows the
+    split gives, not the constraints themselves), the other split's are tried; with ``rescue`` (the
+    tour was the planner's own choice, not the caller's) then the coverage planner's plan, which
+    fixes its own order and the windows where its paths pass each locale
+    (:func:`~pmht_opt.planners.windows.witness_visits`). The plan says so in ``extras["restarted"]``.
+    """
     routes = check_routes(scenario, tour.routes if isinstance(tour, TourResult) else tour)
     if isinstance(tour, TourResult) and not _same_places(tour.scenario, scenario):
         raise ConfigError(
@@ -160,11 +178,74 @@ def smooth_tour(
         scenario.coverage_radius if visit_radius is None else positive_number("visit_radius", visit_radius)
     )
     closed = closed_routes(scenario, settings.constraints)
-    windows = sub_batches(scenario, routes, split, closed=closed)
-    N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon
-    platform = np.empty(N, dtype=int)
+    platform = np.empty(scenario.n_locales, dtype=int)
     for m, route in enumerate(routes):
         platform[route] = m
+    run = functools.partial(
+        _smooth,
+        scenario,
+        settings,
+        stop,
+        radius=radius,
+        sides=sides,
+        snapshots=snapshots,
+        callbacks=callbacks,
+    )
+    tried = []
+    for how in (split, *(s for s in SPLITS if s != split)):
+        windows = sub_batches(scenario, routes, how, closed=closed)
+        try:
+            result = run(routes, platform, windows, polyline_start(scenario, routes, windows, how, closed))
+        except ScheduleError as err:
+            tried.append((how, err))
+            continue
+        if tried:
+            result.extras["restarted"] = (
+                f"with the {how!r} split, after the {split!r} split's failed: {tried[0][1]}"
+            )
+        return result
+    first = tried[0][1]
+    failures = [f"the {how!r} split's sub-batches failed too ({err})" for how, err in tried[1:]]
+    if rescue:
+        others = settings.replace(
+            constraints=[c for c in settings.constraints if not isinstance(c, VisitAll)]
+        )
+        try:
+            witness = plan_cover(scenario.replace(coverage_radius=radius), others, CoverageOptions())
+        except PmhtOptError as err:
+            failures.append(f"the coverage planner found no plan to start from ({err})")
+        else:
+            platform, windows = witness_visits(scenario, witness.positions, radius)
+            order = [np.flatnonzero(platform == m) for m in range(scenario.n_platforms)]
+            routes = [r[np.argsort(windows[r, 0], kind="stable")] for r in order]
+            try:
+                result = run(routes, platform, windows, witness.states)
+            except ScheduleError as err:
+                failures.append(f"the coverage planner's order and visit steps failed too ({err})")
+            else:
+                result.extras["restarted"] = (
+                    f"in the coverage planner's order and visit steps, after the tour's sub-batches failed: "
+                    f"{first}"
+                )
+                return result
+    raise ScheduleError(f"{first} {' '.join(failures)}".strip(), backend=first.backend) from first
+
+
+def _smooth(
+    scenario: Scenario,
+    settings: Settings,
+    stop: StoppingCriterion,
+    routes: list[np.ndarray],
+    platform: np.ndarray,
+    windows: np.ndarray,
+    initial: np.ndarray,
+    *,
+    radius: float | np.ndarray,
+    sides: int,
+    snapshots: tuple[int, ...],
+    callbacks: EMCallbacks | None,
+) -> PlanResult:
+    """The EM run of one schedule: each locale on its ``platform``, inside its window, from ``initial``."""
     visits = TourVisits(platform, windows, radius, sides=sides)
     limit = iteration_limit(stop) or validation.MAX_ITERATIONS
     run_cfg = PMHTConfig.of(
@@ -173,17 +254,13 @@ def smooth_tour(
         (stop,),
         max_iter=limit,
     )
-    time_prior = np.zeros((N, T))
-    for n, (lo, hi) in enumerate(windows):
-        time_prior[n, lo - 1 : hi] = 1.0
-    platform_prior = np.zeros((N, M))
-    platform_prior[np.arange(N), platform] = 1.0
+    time_prior, platform_prior = window_priors(scenario, platform, windows)
     with EMRun(
         scenario,
         run_cfg,
         time_prior=time_prior,
         platform_prior=platform_prior,
-        initial_paths=polyline_start(scenario, routes, windows, split, closed),
+        initial_paths=initial,
         callbacks=callbacks,
     ) as run:
         result = run.run()
@@ -286,6 +363,7 @@ class SmoothedPlanner(Planner):
             sides=options.sides,
             snapshots=tuple(options.snapshots),
             callbacks=observing(None, callback),
+            rescue=options.tour is None,
         )
         if objective is not None:
             result.extras["objective"] = objective

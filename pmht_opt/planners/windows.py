@@ -159,3 +159,53 @@ def polyline_start(
     paths[:, 0, :] = x0
     assert paths.shape == (M, T + 1, STATE_DIM)
     return paths
+
+
+def witness_visits(
+    scenario: Scenario, positions: np.ndarray, radius: float | np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(platform (N,), windows (N, 2))``: where the paths ``positions (M, T+1, 2)`` visit each locale.
+
+    A locale goes to the platform whose path is inside its disc (``radius``: one number or one per
+    locale) at the most steps ``t = 1..T``, and its window is the longest run of consecutive such
+    steps (the earliest among equally long ones); a locale no path is inside gets the single closest
+    step. Visits imposed in these windows are met by the paths themselves, so a planner that restarts
+    from them has a feasible point (:func:`~pmht_opt.planners.pmht.run_em`).
+    """
+    N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon
+    radii = np.broadcast_to(np.asarray(radius, dtype=float), (N,))
+    pos = positions[:, 1:, :]
+    gap = np.hypot(
+        pos[:, :, None, 0] - scenario.locales[None, None, :, 0],
+        pos[:, :, None, 1] - scenario.locales[None, None, :, 1],
+    )  # (M, T, N)
+    inside = gap <= radii
+    platform = np.empty(N, dtype=int)
+    windows = np.empty((N, 2), dtype=int)
+    for n in range(N):
+        counts = inside[:, :, n].sum(axis=1)
+        if counts.max() == 0:
+            m, t = (int(i) for i in np.unravel_index(int(np.argmin(gap[:, :, n])), (M, T)))
+            platform[n], windows[n] = m, (t + 1, t + 1)
+            continue
+        m = int(np.argmax(counts))
+        # Runs of consecutive steps inside: their starts and ends, from the edges of the indicator.
+        edges = np.diff(np.concatenate([[0], inside[m, :, n].astype(int), [0]]))
+        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        k = int(np.argmax(ends - starts))
+        platform[n], windows[n] = m, (starts[k] + 1, ends[k])
+    return platform, windows
+
+
+def window_priors(
+    scenario: Scenario, platform: np.ndarray, windows: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(time_prior (N, T), platform_prior (N, M))`` that put every locale on its ``platform`` and
+    inside its window (``(lo, hi)``, steps counted from 1), and nowhere else."""
+    N, M, T = scenario.n_locales, scenario.n_platforms, scenario.horizon
+    time_prior = np.zeros((N, T))
+    for n, (lo, hi) in enumerate(windows):
+        time_prior[n, lo - 1 : hi] = 1.0
+    platform_prior = np.zeros((N, M))
+    platform_prior[np.arange(N), platform] = 1.0
+    return time_prior, platform_prior
