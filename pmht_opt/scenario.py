@@ -179,6 +179,9 @@ class Scenario:
         """Build a scenario from :meth:`to_dict`'s form; unknown or missing keys raise ScenarioError."""
         if not isinstance(data, dict):
             raise ScenarioError(f"A scenario must be a table/object, got {type(data).__name__}.")
+        keys = [k for k in data if not isinstance(k, str)]
+        if keys:
+            raise ScenarioError(f"Scenario field names must be text, got {keys[0]!r}.")
         unknown = sorted(set(data) - set(SCENARIO_FIELDS))
         if unknown:
             raise ScenarioError(f"Unknown scenario field(s): {', '.join(unknown)}.")

@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+import pmht_opt as po
 from pmht_opt.cli import main
 
 
@@ -43,3 +45,18 @@ def test_solvers_lists_backends(capsys: pytest.CaptureFixture[str]) -> None:
     text = capsys.readouterr().out
     for name in ("clarabel", "osqp", "kalman", "cvxpy"):
         assert name in text
+
+
+def test_warnings_reach_the_command_line_as_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    import warnings
+
+    from pmht_opt.cli import one_line_warnings
+
+    with one_line_warnings():
+        warnings.warn(po.PlanWarning("the plan was fitted at r = 0.1"), stacklevel=1)
+        np.log(np.zeros(1))  # numpy's own RuntimeWarning, in the same form
+    err = capsys.readouterr().err.splitlines()
+    assert err == [
+        "pmht-opt: warning: the plan was fitted at r = 0.1",
+        "pmht-opt: warning: divide by zero encountered in log",
+    ]

@@ -95,3 +95,15 @@ def test_bad_origins_and_points_name_the_field() -> None:
         alps.to_local([[7.1, 45.9]], name="locales")
     with pytest.raises(ScenarioError, match=f"within {MAX_DISTANCE / 1000:g} km"):
         plane.to_local([[-36.5, 149.16]], name="starts")
+
+
+@pytest.mark.parametrize("lon", [0.0, 45.0, 180.0, -180.0])
+def test_the_equator_converts_without_numpy_warnings(lon: float) -> None:
+    import warnings
+
+    plane = GeoOrigin(0.0, lon).plane
+    points = np.array([[0.0, lon], [0.001, lon - 0.001 if lon > 0 else lon + 0.001], [-0.01, lon]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # 0 / sin(0) in the branch not taken used to warn
+        back = plane.to_geodetic(plane.to_local(points))
+    assert np.abs(back - points).max() < 1e-12

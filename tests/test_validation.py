@@ -706,3 +706,16 @@ def test_a_write_that_fails_leaves_neither_the_file_nor_a_part(tmp_path: Path) -
     with validation.writing(target) as part:
         part.write_text("the new plan\n")
     assert target.read_text() == "the new plan\n" and len(list(target.parent.iterdir())) == 1
+
+
+def test_scenario_fields_that_are_not_text_are_named() -> None:
+    with pytest.raises(po.ScenarioError, match=r"field names must be text, got 1"):
+        po.Scenario.from_dict({1: 2, "locales": [[0, 0]], "starts": [[0, 0]]})
+
+
+def test_a_motion_limit_below_what_solvers_resolve_is_refused() -> None:
+    sc = po.Scenario(locales=[[0.0, 0.0], [1.0, 1.0]], starts=[[0.5, 0.5]], horizon=20)
+    for con, name in ((po.SpeedLimit(1e-300), "SpeedLimit"), (po.AccelLimit(1e-300), "AccelLimit")):
+        with pytest.raises(po.ConfigError, match=rf"^{name}\(1e-300\): .* cannot resolve"):
+            po.plan(sc, "pmht", settings=po.Settings(constraints=[con]))
+    po.plan(sc, "pmht", settings=po.Settings(constraints=[po.SpeedLimit(1e-6)]), stop=po.MaxIterations(2))

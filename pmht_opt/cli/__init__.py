@@ -17,10 +17,13 @@ as for a process ended by SIGPIPE.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import sys
-from collections.abc import Sequence
+import warnings
+from collections.abc import Iterator, Sequence
+from typing import Any
 
 from pmht_opt.cli import commands
 from pmht_opt.cli.parser import build_parser
@@ -61,6 +64,21 @@ def _silence_stdout() -> None:
         pass
 
 
+@contextlib.contextmanager
+def one_line_warnings() -> Iterator[None]:
+    """Show every warning raised within as one line on stderr, ``pmht-opt: warning: MESSAGE``, in the
+    command line's words: a user of the command sees neither Python's warning format nor a source
+    line of the library."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+
+        def show(message: Warning | str, category: type[Warning], *args: Any, **kwargs: Any) -> None:
+            print(f"pmht-opt: warning: {cli_words(str(message))}", file=sys.stderr)
+
+        warnings.showwarning = show
+        yield
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit status (module notes)."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -71,7 +89,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             args = build_parser().parse_args(argv)
         except SystemExit as exc:  # --help, --version, or argparse's own usage error (status 2)
             return exc.code if isinstance(exc.code, int) else EXIT_ERROR
-        code: int = args.func(args)
+        with one_line_warnings():
+            code: int = args.func(args)
         sys.stdout.flush()
     except PmhtOptError as err:
         print(f"pmht-opt: error: {cli_words(str(err))}", file=sys.stderr)

@@ -30,6 +30,10 @@ if TYPE_CHECKING:
     from pmht_opt.scenario import Scenario
 
 
+#: The smallest travel over the horizon a motion limit may allow, relative to the scenario's extent.
+RESOLVED = 1e-9
+
+
 class _NormLimit(Constraint):
     """A bound on the norm of a state pair and of a finite difference of positions (module docstring)."""
 
@@ -65,6 +69,16 @@ class _NormLimit(Constraint):
         if self.limit.size not in (1, scenario.n_platforms):
             raise ConfigError(
                 f"{self.name}: {self.limit.size} limits given for {scenario.n_platforms} platforms."
+            )
+        # Below this the limit is rounding on the scenario's scale: rows scaled to it overflow.
+        span = scenario.horizon * scenario.dt
+        reach = float(np.min(self.limit)) * span**self.order
+        extent = Constraint.scale(self, scenario)
+        if reach < RESOLVED * extent:
+            raise ConfigError(
+                f"{self.name}: at this limit a platform moves {reach:.3g} in the whole horizon, below "
+                f"{RESOLVED:g} of the scenario's extent ({extent:g}), which the solvers cannot resolve. "
+                "To keep a platform where it is, end it there with Terminal(position=...)."
             )
         for m in self.applies_to(scenario):
             value = float(np.hypot(*scenario.initial_states[m, list(self.comps)]))

@@ -72,12 +72,13 @@ def ecef_to_geodetic(xyz: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     h = np.zeros_like(p)
     for _ in range(10):
         n = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(phi) ** 2)
-        cos_phi = np.cos(phi)
-        # Near the poles p / cos(phi) loses precision; z / sin(phi) does not.
+        cos_phi, sin_phi = np.cos(phi), np.sin(phi)
+        # Near the poles p / cos(phi) loses precision; z / sin(phi) does not. Both branches are
+        # evaluated: each divides by 1 where its own divisor vanishes (the other branch is taken there).
         h = np.where(
             np.abs(cos_phi) > 1e-3,
             p / np.where(cos_phi == 0, 1.0, cos_phi) - n,
-            z / np.sin(phi) - n * (1.0 - WGS84_E2),
+            z / np.where(sin_phi == 0, 1.0, sin_phi) - n * (1.0 - WGS84_E2),
         )
         phi = np.arctan2(z, p * (1.0 - WGS84_E2 * n / (n + h)))
     return np.degrees(phi), np.degrees(lam), h
