@@ -67,7 +67,8 @@ class _StopAt:
 
 def test_extra_stopping_criteria_end_the_run() -> None:
     sc = small_scenario(seed=4)
-    res = po.plan_pmht(sc, po.PMHTConfig(max_iter=50, stop=_StopAt(7)))
+    with pytest.warns(po.PlanWarning, match=r"fitted at r = .* during annealing"):  # stopped at a wide r
+        res = po.plan_pmht(sc, po.PMHTConfig(max_iter=50, stop=_StopAt(7)))
     assert res.n_iterations == 7 and res.history.stop_reason == "_StopAt" and not res.converged
     budget = po.plan_pmht(sc, po.PMHTConfig(max_iter=10_000, anneal=None, stop=[po.TimeBudget(0.3)]))
     assert budget.history.stop_reason == "TimeBudget" and budget.n_iterations < 10_000
