@@ -220,7 +220,7 @@ def _model_defaults(kwargs: dict[str, Any]) -> None:
     ``(r dt / q)^(1/6)`` a fiftieth of the mission's duration ``T dt``. Both give the paper's values
     for its scenarios (``rho = 0.3``, ``T = 500``, ``dt = 1``: ``r = 0.01``, ``q = 1e-8``), and both
     follow the mission's units of length and time, so a mission in metres plans without model
-    settings (docs/model.md section 12).
+    settings (docs/model.md section 16).
     """
     numbers = [kwargs.get(k) for k in ("coverage_radius", "r", "dt", "horizon") if k in kwargs]
     if not all(validation.is_real(v) or isinstance(v, list) for v in numbers):
