@@ -215,6 +215,8 @@ def test_demo_animates_the_iterations(tmp_path: Path, capsys: pytest.CaptureFixt
     code = main(
         [
             "demo",
+            "--planner",
+            "pmht",
             "--scenario",
             "B",
             "--iterations",
@@ -291,6 +293,8 @@ def test_ctrl_c_stops_with_one_line_and_status_130(tmp_path: Path) -> None:
             "-m",
             "pmht_opt",
             "demo",
+            "--planner",
+            "pmht",
             "--iterations",
             "100000",
             "--out",

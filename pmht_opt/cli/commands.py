@@ -29,7 +29,7 @@ ANIMATED = ("pmht", "smoothed")
 #: Iterations of each planner's run when the mission does not say (for the progress bar).
 DEFAULT_ITERATIONS = {"pmht": 100, "smoothed": 100}
 #: The planner of ``pmht-opt demo``.
-DEMO_METHOD = "pmht"
+DEMO_METHOD = "coverage"
 #: The ``order`` command's options of the ordering: ``option -> option of the method``.
 ORDER_OPTIONS = (
     ("seed", "seed"),
@@ -117,12 +117,18 @@ def report(result: PlanResult, mission: Mission) -> None:
         ),
         ("max excursion outside area", f"{m['max_excursion']:.3f}{u}"),
         ("max constraint violation", f"{result.max_violation:.1e}"),
-        ("final EM objective", f"{m['final_objective']:.6g}"),
-        (
-            "wall time (E-step / M-step)",
-            f"{m['wall_time']:.2f} s ({h.estep_time.sum():.2f} / {h.mstep_time.sum():.2f})",
-        ),
     ]
+    if result.planner == "coverage":  # no EM: a tour, then a flight of fixed weights
+        rows.append(("straight-line tour", f"{float(result.extras['tour_length']):.2f}{u}"))
+        rows.append(("wall time", f"{m['wall_time']:.2f} s"))
+    else:
+        rows.append(("final EM objective", f"{m['final_objective']:.6g}"))
+        rows.append(
+            (
+                "wall time (E-step / M-step)",
+                f"{m['wall_time']:.2f} s ({h.estep_time.sum():.2f} / {h.mstep_time.sum():.2f})",
+            )
+        )
     if mission.planner.return_to_base:
         gap = float(abs(result.positions[:, -1] - sc.start_positions).max())
         rows.insert(4, ("return to base", f"every platform ends within {gap:.1e}{u} of its start, at rest"))

@@ -39,13 +39,8 @@ def _fallback(key: str, value: Any) -> str:
 
 def _add_planner_options(p: argparse.ArgumentParser, mission: bool) -> None:
     """Options of the EM planner; for a mission they override its ``[planner]`` table."""
-    if mission:
-        p.add_argument(
-            "--planner",
-            choices=list(PLANNERS),
-            default=None,
-            help=f"planner {_fallback('method', DEFAULT_METHOD)}",
-        )
+    default = _fallback("method", DEFAULT_METHOD) if mission else f"(default: {commands.DEMO_METHOD})"
+    p.add_argument("--planner", choices=list(PLANNERS), default=None, help=f"planner {default}")
     say: Callable[[str, Any], str] = _fallback if mission else (lambda key, value: f"(default: {value})")
     p.add_argument(
         "--solver",
