@@ -5,13 +5,16 @@ Build (docs/README.md): ``python -m sphinx -W --keep-going -b html docs docs/_bu
 
 from __future__ import annotations
 
+import pkgutil
 import shutil
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from docutils import nodes
     from sphinx.application import Sphinx
+    from sphinx.environment import BuildEnvironment
 
 # Document the checkout being built, whatever else the environment has installed.
 ROOT = Path(__file__).resolve().parent.parent
@@ -86,6 +89,65 @@ def _no_signature_for_data(
     return None
 
 
+def _resolve(name: str) -> Any:
+    try:
+        return pkgutil.resolve_name(name)
+    except Exception:  # not an importable name: a third-party type, a parameter, a typo
+        return None
+
+
+class _Documented:
+    """The documented name of each documented class, exception and function: by the object's id, and
+    by its last part where that is unique."""
+
+    def __init__(self, env: BuildEnvironment) -> None:
+        self.by_id: dict[int, str] = {}
+        tails: dict[str, list[str]] = {}
+        for name, entry in sorted(env.get_domain("py").objects.items()):
+            obj = _resolve(name) if entry.objtype in ("class", "exception", "function") else None
+            if obj is not None and id(obj) not in self.by_id:
+                self.by_id[id(obj)] = name
+                tails.setdefault(name.rpartition(".")[2], []).append(name)
+        self.by_tail = {tail: names[0] for tail, names in tails.items() if len(names) == 1}
+
+    def home(self, target: str, module: str | None) -> str | None:
+        candidates = [target, f"{module}.{target}"] if module else [target]
+        obj = next((o for o in map(_resolve, candidates) if o is not None), None)
+        if obj is not None:
+            return self.by_id.get(id(obj))
+        return self.by_tail.get(target)
+
+
+#: This build's index of documented objects, made once every source is read (ids hold in one process
+#: only, so it is not kept with the pickled environment).
+_documented: list[_Documented] = []
+
+
+def _index_documented(app: Sphinx, env: BuildEnvironment) -> None:
+    _documented[:] = [_Documented(env)]
+
+
+def _link_other_paths(
+    app: Sphinx, env: BuildEnvironment, node: nodes.Element, contnode: nodes.TextElement
+) -> nodes.Element | None:
+    """Link a name given by another of its import paths to where it is documented.
+
+    Each object is documented once, under its subpackage (``pmht_opt.scenario.Scenario``); docstrings
+    also name it as re-exported (``pmht_opt.Scenario``), as imported into the module they are in, or
+    by its bare name from a module that does not import it.
+    """
+    if node.get("refdomain") != "py" or not _documented:
+        return None
+    target = node["reftarget"]
+    home = _documented[0].home(target, node.get("py:module"))
+    if home is None or home == target:
+        return None
+    py = env.get_domain("py")
+    return py.resolve_xref(env, node["refdoc"], app.builder, node["reftype"], home, node, contnode)
+
+
 def setup(app: Sphinx) -> None:
     # Before numpydoc's handler (priority 500).
     app.connect("autodoc-process-signature", _no_signature_for_data, priority=400)
+    app.connect("env-updated", _index_documented)
+    app.connect("missing-reference", _link_other_paths)
