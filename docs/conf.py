@@ -50,17 +50,14 @@ autosummary_generate = True
 autosummary_generate_overwrite = True
 # Written afresh each time, so that a stub of a name no longer listed cannot linger.
 shutil.rmtree(Path(__file__).parent / "api" / "generated", ignore_errors=True)
-autosummary_imported_members = False
 autodoc_default_options = {"members": True, "show-inheritance": True}
 autodoc_member_order = "bysource"
-# Signatures keep their annotations; the numpydoc sections carry the prose.
-autodoc_typehints = "signature"
+# Defaults as written (``DEFAULT_SIDES``), not as evaluated.
 autodoc_preserve_defaults = True
 
 # autodoc documents each class's own members in place; numpydoc's member tables would repeat them
 # and list inherited ones that have no entry to link to.
 numpydoc_show_class_members = False
-numpydoc_attributes_as_param_list = True
 
 # -- Markdown (docs/*.md) --------------------------------------------------------------------------
 myst_enable_extensions = ["dollarmath", "amsmath"]
@@ -72,7 +69,6 @@ myst_heading_anchors = 3
 # -- HTML ------------------------------------------------------------------------------------------
 html_theme = "alabaster"
 html_title = f"pmht-opt {release}"
-html_static_path: list[str] = []
 
 
 def _no_signature_for_data(
