@@ -7,11 +7,13 @@ Nothing here knows about path planning. Backends are imported on first use, neve
     solution = session.solve()
     if not solution.ok: ...
 
-| name       | package  | cones                       |
-|------------|----------|-----------------------------|
-| ``osqp``     | osqp     | zero, non-negative          |
-| ``clarabel`` | clarabel | zero, non-negative, SOC     |
-| ``cvxpy``    | cvxpy    | zero, non-negative, SOC     |
+============  ========  =======================
+name          package   cones
+============  ========  =======================
+``osqp``      osqp      zero, non-negative
+``clarabel``  clarabel  zero, non-negative, SOC
+``cvxpy``     cvxpy     zero, non-negative, SOC
+============  ========  =======================
 """
 
 from __future__ import annotations

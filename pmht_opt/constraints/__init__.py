@@ -6,18 +6,18 @@ it. To add a kind, subclass :class:`Constraint`, declare what it :attr:`~Constra
 implement :meth:`~Constraint.blocks`; with the ``cvxpy`` backend, :class:`CvxpyConstraint` takes any
 cvxpy expression instead.
 
-=====================  =====================================  ===================================
-kind                   what                                   needs (without cones)
-=====================  =====================================  ===================================
-SpeedLimit, AccelLimit norm of velocity / acceleration        soc (inner polygon, ``sides``)
-AreaBounds             box on positions                       linear
-StayNear               near the area (implied by VisitAll)    linear
-CircleObstacle         keep-out disc, linearised per step     linear (half-planes)
-PolygonObstacle        keep-out convex polygon, linearised    linear (half-planes)
-VisitAll               every locale within a radius           soc (inner polygon)
-Terminal               final velocity / position              linear, soc for a radius
-CvxpyConstraint        anything in cvxpy                      cvxpy (the cvxpy backend only)
-=====================  =====================================  ===================================
+======================  =====================================  ===================================
+kind                    what                                   needs (without cones)
+======================  =====================================  ===================================
+SpeedLimit, AccelLimit  norm of velocity / acceleration        soc (inner polygon, ``sides``)
+AreaBounds              box on positions                       linear
+StayNear                near the area (implied by VisitAll)    linear
+CircleObstacle          keep-out disc, linearised per step     linear (half-planes)
+PolygonObstacle         keep-out convex polygon, linearised    linear (half-planes)
+VisitAll                every locale within a radius           soc (inner polygon)
+Terminal                final velocity / position              linear, soc for a radius
+CvxpyConstraint         anything in cvxpy                      cvxpy (the cvxpy backend only)
+======================  =====================================  ===================================
 """
 
 from pmht_opt.constraints.area import AreaBounds, StayNear
