@@ -406,6 +406,31 @@ def test_inner_polygon_of_a_cone_block_is_inscribed() -> None:
     assert np.max(poly.residual(z)) < 1e-12 and blk.residual(z)[0] < 1e-12
 
 
+@pytest.mark.parametrize("radius", [1e-9, 1e-5, 0.1, 3.0])
+def test_a_hard_polygon_is_scaled_and_backed_off_as_its_cone(radius: float) -> None:
+    """Inner polygons (OSQP's cones) are divided by the cone's radius and shrunk by the cone's
+    back-off: an acceleration limit of 1e-5 or 1e-9 keeps a polygon around its centre (backed off
+    like other linear rows, by 1e-5 absolute, it was empty), and a solver's absolute tolerance on
+    its rows is relative to the radius, as on the cone's own."""
+    from pmht_opt.constraints.blocks import disc_block, inner_polygon
+    from pmht_opt.mstep.rows import BACKOFF, Imposed, assemble
+
+    T = 3
+    centre = np.array([[1.0, 2.0]])
+    cone = disc_block(0, T, np.array([2]), (0, 3), centre, np.array([radius]), sides=8)
+    rows = assemble([Imposed(inner_polygon(cone), "limit")], 6 * T, np.arange(6 * T))
+    z = np.zeros(6 * T)
+    z[6], z[9] = centre[0]
+    # At the centre: cos(pi / 8) of the normalised radius 1, less the cut (up to the rounding of
+    # coordinates of size 2 divided by the radius).
+    slack = rows.b - rows.A @ z
+    rounding = 64 * np.finfo(float).eps * 2.0 / radius
+    np.testing.assert_allclose(slack, np.cos(np.pi / 8) * (1.0 - BACKOFF), rtol=1e-12, atol=rounding)
+    # Each row's coefficients are its face's unit normal over the radius.
+    norms = np.sqrt(rows.A.multiply(rows.A).sum(axis=1)).A1
+    np.testing.assert_allclose(norms * radius, 1.0, rtol=1e-12)
+
+
 def test_span_pattern_keeps_one_sparsity_for_moving_rows() -> None:
     from pmht_opt.constraints.blocks import disc_block, with_span_pattern
 

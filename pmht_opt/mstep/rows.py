@@ -226,8 +226,8 @@ def assemble(
             out.slack(start + np.arange(k), np.repeat(sl, blk.group))
             out.slack(start + k + np.arange(k), np.repeat(sl, blk.group))
             out.cones.append(solvers.Nonneg(2 * k))
-        elif blk.kind == "nonneg":  # h - G z + s >= 0, s >= 0
-            out.slack(start + np.arange(k), np.repeat(sl, blk.group))
+        elif blk.kind == "nonneg":  # h - G z + s >= 0, s >= 0 (a polygon's rows scaled: so is the slack)
+            out.slack(start + np.arange(k), np.repeat(sl, blk.group), unit_scale)
             out.cones.append(solvers.Nonneg(k))
             out.nonneg_slacks(sl)
         else:  # (h - G z)_0 + s >= ||(h - G z)_1..||, s >= 0 (rows scaled: so is the slack)
@@ -255,19 +255,23 @@ def _normalised(
 ) -> tuple[sp.coo_matrix, np.ndarray, np.ndarray]:
     """``(G, h)`` of ``blk`` on the QP's variables (measured from ``origin``, in ``units``:
     :func:`assemble`), with each second-order cone divided by its radius ``h_0`` (when positive), and
-    the factor per unit.
+    the factor per unit. The rows of an inner polygon are divided by the radius of the cone they stand
+    for (:attr:`~pmht_opt.constraints.blocks.Block.radius`), like the cone.
 
     A cone is unchanged by a positive factor, but a solver's feasibility tolerance is absolute on the
     rows it is given: divided by its radius, a limit of 1e-3 is met to the same relative precision as
-    a limit of 1. Linear rows are left as they are (unit normals and bounds).
+    a limit of 1. Other linear rows are left as they are (unit normals and bounds).
     """
     G = with_span_pattern(blk).tocoo()
     h = blk.h if origin is None else blk.h - G @ origin
     if units is not None:
         G.data = G.data * units[G.col % STATE_DIM]
-    if blk.kind != "soc":
+    if blk.kind == "soc":
+        radius = h[:: blk.dim]
+    elif blk.radius is not None:  # an inner polygon: its rows scaled as the cone it stands for
+        radius = blk.radius
+    else:
         return G, h, np.ones(blk.units)
-    radius = h[:: blk.dim]
     scale = np.where(radius > 0, 1.0 / np.where(radius > 0, radius, 1.0), 1.0)
     per_row = np.repeat(scale, blk.dim)
     G.data = G.data * per_row[G.row]
@@ -297,6 +301,12 @@ def _backed_off(blk: Block, h: np.ndarray, least: np.ndarray | float = 0.0) -> n
         cut = np.minimum(np.maximum(BACKOFF, np.broadcast_to(least, radius.shape)), 0.5)
         radius[radius > 0] -= cut[radius > 0]  # normalised: the radius is 1
         return out
+    if blk.radius is not None:
+        # An inner polygon: the cone's radius (normalised to 1) shrunk as above, which moves each row
+        # by cos(pi / S) times the cut. Backed off like other linear rows, a polygon of a limit below
+        # 1e-5 would be empty.
+        cut = np.minimum(np.maximum(BACKOFF, np.broadcast_to(least, h.shape)), 0.5)
+        return np.where(blk.radius > 0, h - np.cos(np.pi / blk.sides) * cut, h)
     if blk.kind == "nonneg":
         return h - BACKOFF * np.maximum(np.abs(h), 1.0)
     return h
