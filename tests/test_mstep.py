@@ -144,8 +144,9 @@ def test_inaccurate_solutions_are_refused_unless_accepted(scenario_a: po.Scenari
 
 def test_fallback_settings_give_way_to_the_callers(scenario_a: po.Scenario) -> None:
     assert make_mstep(scenario_a, "osqp").blocks[0].retries == RETRIES["osqp"]
-    # A caller who picks rho has chosen what the fallbacks would change: none is tried.
-    assert make_mstep(scenario_a, "osqp", {"rho": 5.0}).blocks[0].retries.sets == ()
+    # A caller who picks the polishing's refinement has chosen what the fallback would change: none
+    # is tried.
+    assert make_mstep(scenario_a, "osqp", {"polish_refine_iter": 5}).blocks[0].retries.sets == ()
     only = make_mstep(scenario_a, "clarabel", {"max_iter": 50}).blocks[0].retries
     assert only == RETRIES["clarabel"]
 
@@ -153,7 +154,7 @@ def test_fallback_settings_give_way_to_the_callers(scenario_a: po.Scenario) -> N
 @pytest.mark.parametrize(
     ("backend", "fast", "chain"),
     [
-        ("osqp", {"max_iter": 20}, ({"max_iter": 30}, {"max_iter": 50_000})),
+        ("osqp", {"max_iter": 5}, ({"max_iter": 6}, {"max_iter": 50_000})),
         ("clarabel", {"max_iter": 0}, ({"max_iter": 0, "equilibrate_enable": True}, {"max_iter": 200})),
     ],
 )

@@ -2,12 +2,17 @@
 
 Why each value (figures in docs/decisions.md sections 2 and 3):
 
-* OSQP, unconstrained: residuals of the dynamics integrate into positions over hundreds of steps, so
-  ADMM must run to 1e-9; with ``rho = 1`` it gets there in fewer iterations than with its default, and
-  polishing needs many refinement steps for the same accuracy, which cost more. OSQP equilibrates the
-  problem again at every update of ``P``, once per EM iteration; four passes of its equilibration
-  (its default is ten) take as many ADMM iterations, to answers within rounding of the solver's
-  tolerance of those with ten, at about half the cost of an update.
+* OSQP, unconstrained: the QP has equality rows only, so OSQP's polishing is the solve of its whole
+  KKT system, refined against the unregularised matrix: exact to rounding, where ADMM alone must run
+  to 1e-9 (residuals of the dynamics integrate into positions over hundreds of steps) and its
+  duality-gap test then stalls small problems at "solved inaccurate" (one locale, 30 steps). So ADMM
+  runs to 1e-4 only (its iterate is a warm start), polishing follows, and the answer counts as solved
+  only if its residuals meet 1e-10 (``polish_tolerance``, :mod:`solvers.osqp_`), which a polish whose
+  refinement has not converged misses by orders of magnitude. The refinement converges in a few steps
+  with ``sigma = 1e-9``; with OSQP's 1e-6 it stalled at 1e-9 on coordinates of a few hundredths.
+  ``rho = 1``; OSQP equilibrates the problem again at every update of ``P``, once per EM iteration,
+  and four passes of its equilibration (its default is ten) cost half as much for the same answers.
+  The retry refines the polish 50 times.
 * OSQP, constrained: at 1e-9 ADMM needs tens of thousands of iterations with inequality rows; at 1e-5
   with polishing it solves limits, bounds, obstacles and terminal conditions. OSQP's duality-gap
   test keeps such solves at "solved inaccurate", so it is off. Polishing recovers the exact answer when
@@ -43,8 +48,7 @@ Why each value (figures in docs/decisions.md sections 2 and 3):
 * Retries (:class:`solvers.RetryChain`), tried in turn when a solve fails without an infeasibility
   verdict; a set that touches a setting the caller chose is skipped, and the set that solves is kept
   for that platform's later solves. Clarabel: iterative refinement (rescues "insufficient progress"
-  on ill-scaled constrained M-steps). OSQP: a fixed ``rho`` of 100, then 30 (adaptive ``rho`` can
-  stall where a manoeuvre is first forced on the paths).
+  on ill-scaled constrained M-steps). OSQP: a longer refinement of the polish.
 * cvxpy with Clarabel, unconstrained: cvxpy's form keeps the raw penalty weights and its answers are
   less precise than the clarabel backend's; some M-steps end "almost solved" with Clarabel's defaults.
   The retries are a smaller static regularisation, then no equilibration (the smaller regularisation
@@ -72,10 +76,14 @@ CONDENSED: dict[str, dict[str, Any]] = {
 #: Options of the unconstrained M-step QP per backend (the caller's settings override them).
 DEFAULTS: dict[str, dict[str, Any]] = {
     "osqp": {
-        "eps_abs": 1e-9,
-        "eps_rel": 1e-9,
+        "eps_abs": 1e-4,
+        "eps_rel": 1e-4,
         "rho": 1.0,
-        "polishing": False,
+        "polishing": True,
+        "polish_refine_iter": 10,
+        "polish_tolerance": 1e-10,
+        "sigma": 1e-9,
+        "check_dualgap": False,
         "check_termination": 10,
         "scaling": 4,
     },
@@ -112,7 +120,7 @@ RETRIES: dict[str, RetryChain] = {
             {"max_step_fraction": 0.9},
         )
     ),
-    "osqp": RetryChain(({"rho": 100.0, "adaptive_rho": False}, {"rho": 30.0, "adaptive_rho": False})),
+    "osqp": RetryChain(({"polish_refine_iter": 50},)),
 }
 
 #: Settings tried in turn after a failed solve with constraint rows (backends not listed: :data:`RETRIES`).
