@@ -178,6 +178,19 @@ class OSQPSession(QPSession):
             except osqp.OSQPException as err:
                 raise UpdateError(f"OSQP rejected the update: {_error_name(err)}.") from err
 
+    def warm_start(self, x: np.ndarray | None = None, y: np.ndarray | None = None) -> bool:
+        """Start the next ADMM iterations from ``x`` and ``y`` (OSQP's ``warm_start``; an omitted one
+        keeps its current iterate)."""
+        prob = self.problem
+        kwargs: dict[str, np.ndarray] = {}
+        if x is not None:
+            kwargs["x"] = _checked_start("x", x, prob.n)
+        if y is not None:
+            kwargs["y"] = _checked_start("y", y, prob.m)
+        if kwargs:
+            self._solver.warm_start(**kwargs)
+        return True
+
     def resume(self, **settings: Any) -> QPSolution | None:
         """Continue from the last iterate with ``settings`` changed (only :data:`RESUMABLE` ones;
         otherwise ``None``). ``max_iter`` counts the iterations of this solve."""
@@ -265,3 +278,11 @@ def _tolerance(value: object) -> float | None:
 
 def _norm(v: np.ndarray) -> float:
     return float(np.max(np.abs(v), initial=0.0))
+
+
+def _checked_start(name: str, values: np.ndarray, size: int) -> np.ndarray:
+    """A starting point of ``size`` finite numbers, or :class:`ProblemError` naming it."""
+    arr = np.asarray(values, dtype=float).reshape(-1)
+    if arr.shape[0] != size or not np.all(np.isfinite(arr)):
+        raise ProblemError(f"warm start {name}: expected {size} finite numbers, got {arr.shape[0]}.")
+    return arr

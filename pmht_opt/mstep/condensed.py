@@ -49,11 +49,12 @@ M-steps to the full QP without an attempt.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import solve_triangular
+from scipy.linalg import qr, solve_triangular
 
 import solvers
 from pmht_opt.model import STATE_DIM, MotionModel
@@ -81,8 +82,31 @@ MAX_ROUNDS = 16
 #: its rows, and past about this many (a limit binding over long stretches) the sparse full QP is
 #: cheaper, so it is solved instead.
 MAX_ROWS = 160
+#: Most rows on the states in the working set before they are reduced to independent ones
+#: (:func:`_basis`): the rows of a polygon standing for one cone add one variable per direction of
+#: the plane, not one per row.
+MAX_DEPENDENT_ROWS = 4 * MAX_ROWS
+#: Most independent rows of a working set reduced from dependent ones. Dependent rows are the
+#: polygons of a backend without cones (OSQP), whose whole QP with polygons costs far more than an
+#: interior point's with cones, so the small QP stays the cheaper one up to more rows (B with
+#: ``VisitAll(0.05)``: 190 of 190 M-steps condensed at 400, one given up at 160, after which the
+#: whole QP failed).
+MAX_BASIS = 400
+#: Most solves of a working set again, with the small QP's right-hand side corrected by what its
+#: rows' slacks on the path differ from its own.
+REFINE = 2
 #: Most M-steps left to the full QP after condensed solves that did not succeed.
 SKIP_MAX = 15
+#: Rows of the working set whose direction is within this (relative) of the others' span depend on
+#: them (:func:`_basis`).
+RANK = 1e-9
+#: Below this least pivot of the small QP's scaled ``Sigma`` (relative to its unit diagonal) the rows
+#: are tested for dependence (:func:`_basis`): rows that depend on each other leave pivots of rounding
+#: size where the factorisation does not fail outright.
+PIVOT = 1e-13
+#: Eigenvalues of a scaled ``Sigma`` that is not definite kept above this fraction of the largest
+#: (:func:`_factor`).
+EIGEN = 1e-12
 
 
 class _Responses:
@@ -177,10 +201,16 @@ class CondensedQP:
     ----------
     model, layout
         The motion model and the layout of the platform's constrained QP.
+    retries
+        Settings tried in turn after a small QP's solve failed.
     """
 
-    def __init__(self, model: MotionModel, layout: QPLayout) -> None:
+    def __init__(
+        self, model: MotionModel, layout: QPLayout, retries: solvers.RetryChain = solvers.NO_RETRY
+    ) -> None:
         self.layout = layout
+        #: Settings tried in turn after a small QP's solve failed (continued from its iterate).
+        self.retries = retries
         self.T = layout.T
         self.smoother = BandedSmoother(model.F3, model.Q3, np.array([1.0, 0.0, 0.0]), self.T, 1)
         self._rows: CondensedRows | None = None
@@ -210,7 +240,7 @@ class CondensedQP:
         if self._skip:
             self._skip -= 1
             return None
-        if rows.has_state[rows.units.rows(self._bound)].sum() > MAX_ROWS:
+        if rows.has_state[rows.units.rows(self._bound)].sum() > MAX_DEPENDENT_ROWS:
             return None  # the last answer was bound by more rows than a condensed QP should take
         answer = self._solve(rows, W, r, session_class, options, exact)
         # After failures in a row, wait 1, 3, 7, ... M-steps (at most SKIP_MAX) before trying again:
@@ -241,23 +271,32 @@ class CondensedQP:
         first = _worst(margin, self._bound, WORST if self._bound.size else 0.0, rows.size)
         units = np.union1d(np.union1d(rows.always, first), self._bound)
         responses = _Responses(rows.C, factor, self.T)
-        iterations = 0
+        iterations = refined = 0
+        # What the rows' slacks on the path differ from the small QP's by, added to its right-hand side.
+        shift = np.zeros(rows.b.size)
         for _ in range(MAX_ROUNDS):
             try:
-                answer = self._round(rows, units, responses, session_class, options, X0)
+                answer = self._round(rows, units, responses, session_class, options, X0, shift)
                 if answer is None:
                     return None
-                sol, w, state_rows, slack = answer
+                sol, w, state_rows, slack, picked, predicted = answer
                 dX, dU = responses.apply(state_rows, w)
             except solvers.QPError:
                 return None
             X, U = X0 + dX, U0 + dU
             iterations += sol.iterations
-            margin = rows.units.margin(rows.b - rows.C @ X - rows.E @ slack)
+            s_path = rows.b - rows.C @ X - rows.E @ slack
+            margin = rows.units.margin(s_path)
             if _missed_in(margin[units], rows.units.kind[units], rows.size[units]):
-                # A row of the working set is missed on the path itself (the small QP's Sigma is
-                # formed without refinement): not exact, the full QP decides.
-                return None
+                # A row of the working set is missed on the path itself: the small QP's Sigma is
+                # formed without refinement. Solved again with the difference moved into its
+                # right-hand side (iterative refinement, the path's slacks as the residual), at most
+                # REFINE times; then the full QP decides.
+                if refined == REFINE:
+                    return None
+                refined += 1
+                shift[picked] += s_path[picked] - predicted
+                continue
             missed = _worst(margin, units, 0.0, rows.size)
             if missed.size == 0:
                 self._bound = units[(margin[units] < BOUND) & rows.on_state[units]]
@@ -300,9 +339,11 @@ class CondensedQP:
         session_class: type[solvers.QPSession],
         options: dict[str, Any],
         X0: np.ndarray,
-    ) -> tuple[solvers.QPSolution, np.ndarray, np.ndarray, np.ndarray] | None:
-        """Solve the small QP of the rows of ``units``: the backend's solution, ``w`` and the rows it
-        belongs to, and the full slack vector; ``None`` if the backend did not solve it."""
+        shift: np.ndarray,
+    ) -> tuple[solvers.QPSolution, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """Solve the small QP of the rows of ``units`` (their right-hand sides moved by ``shift``): the
+        backend's solution, ``w`` and the rows it belongs to, the full slack vector, the rows of the
+        small QP and their slacks in it; ``None`` if the backend did not solve it."""
         E = rows.E
         picked = rows.units.rows(units)
         E_picked = E[picked]
@@ -316,44 +357,58 @@ class CondensedQP:
         on_state = rows.has_state[picked]
         state_rows = picked[on_state]
         k, p = state_rows.size, slacks.size
-        if k > MAX_ROWS:
+        if k > MAX_DEPENDENT_ROWS:
             return None
         if k + p == 0:  # no row in the working set: the unconstrained optimum, exact
             none = solvers.QPSolution(solvers.Status.OPTIMAL, "banded", "exact", x=np.zeros(0))
-            return none, np.zeros(0), state_rows, np.zeros(E.shape[1])
+            return none, np.zeros(0), state_rows, np.zeros(E.shape[1]), picked, np.zeros(picked.size)
         C_picked = rows.C[picked]
         # The cost 1/2 w' Sigma w written as 1/2 |v|^2 with v = R D^-1 w, R'R = D Sigma D (D the
         # Jacobi scaling): an identity Hessian and triangular rows keep the small QP's KKT system sparse.
-        sigma = responses.sigma(state_rows)
-        diag = np.diag(sigma)
-        d = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), 1.0)
-        try:
-            R = np.linalg.cholesky(d[:, None] * sigma * d[None, :]).T
-        except np.linalg.LinAlgError:  # rows that depend on each other: the full QP takes them
+        # Rows that depend on each other (the rows of a polygon standing for one cone are combinations
+        # of its two rows on the path) make Sigma singular: they are written on a basis of independent
+        # ones, C_S = T C_J, and Sigma_J takes Sigma's place.
+        basis, T = np.arange(k), None
+        if k > MAX_ROWS:  # more rows than a small QP takes, unless they depend on each other
+            basis, T = _basis(rows.C[state_rows])
+            if basis.size > (MAX_ROWS if T is None else MAX_BASIS):
+                return None
+        sigma = responses.sigma(state_rows[basis])
+        root, d = _factor(sigma)
+        if T is None and (root is None or np.min(np.diag(root[0])) ** 2 <= PIVOT):
+            basis, T = _basis(rows.C[state_rows])
+            if T is not None:
+                sigma = sigma[np.ix_(basis, basis)]
+            root, d = _factor(sigma, exact=False) if T is not None or root is None else (root, d)
+        if root is None:  # Sigma singular to working precision: the full QP takes the rows
             return None
-        P = sp.diags(np.concatenate([np.ones(k), np.zeros(p)]), format="csc")
-        q = np.zeros(k + p)
+        F, back = root
+        r = F.shape[1]
+        P = sp.diags(np.concatenate([np.ones(r), np.zeros(p)]), format="csc")
+        q = np.zeros(r + p)
         assert self._extra is not None
-        q[k:] = self._extra.slack_cost[slacks]
-        A = np.zeros((picked.size, k + p))
-        A[on_state, :k] = R.T / d[:, None]
-        A[:, k:] = E_picked[:, slacks].toarray()
+        q[r:] = self._extra.slack_cost[slacks]
+        A = np.zeros((picked.size, r + p))
+        A[on_state, :r] = F / d[:, None] if T is None else T @ (F / d[:, None])
+        A[:, r:] = E_picked[:, slacks].toarray()
         problem = solvers.QPProblem(
             P=P,
             q=q,
             A=sp.csc_matrix(A),
-            b=rows.b[picked] - C_picked @ X0,
+            b=rows.b[picked] - C_picked @ X0 + shift[picked],
             cones=tuple(rows.units.cones(units)),
         )
         try:
-            sol = session_class(problem, **options).solve()
+            session = session_class(problem, **options)
+            sol, _ = solvers.retry_failed(session.solve(), options, self.retries, _continued(session))
         except solvers.SettingsError:
             return None
         if not sol.ok or sol.x is None:
             return None
         slack = np.zeros(E.shape[1])
-        slack[slacks] = sol.x[k:]
-        return sol, d * solve_triangular(R, sol.x[:k]), state_rows, slack
+        slack[slacks] = sol.x[r:]
+        predicted = problem.b - problem.A @ sol.x
+        return sol, d * back(sol.x[:r]), state_rows[basis], slack, picked, predicted
 
     def _vector(self, X: np.ndarray, U: np.ndarray, slack: np.ndarray) -> np.ndarray:
         """The full QP's variable vector: per step ``[x_t / units, u_t]``, then the slacks."""
@@ -361,6 +416,80 @@ class CondensedQP:
         body[:, :STATE_DIM] = X.reshape(self.T, STATE_DIM) / self.layout.units
         body[:, STATE_DIM:] = U.reshape(self.T, STATE_DIM)
         return np.concatenate([body.ravel(), slack])
+
+
+Root = tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]
+
+
+def _factor(sigma: np.ndarray, exact: bool = True) -> tuple[Root | None, np.ndarray]:
+    """``((F, back), d)``: the Jacobi scaling ``d`` of ``sigma``, ``F`` with ``F F' = d sigma d`` and
+    ``back(v)`` a ``u`` with ``F' u = v``; ``None`` for the pair if there is none to trust.
+
+    ``F`` is the lower Cholesky factor (``back`` its triangular solve). Where that fails and not
+    ``exact``, ``F`` holds the eigenvectors of the eigenvalues above :data:`EIGEN` of the largest,
+    scaled by their roots: rows whose dependence comes through the dynamics (positions at
+    neighbouring steps of a path this smooth move together to within rounding) then share one
+    variable, and the answer is checked on the path like any other.
+    """
+    diag = np.diag(sigma)
+    d = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), 1.0)
+    S = d[:, None] * sigma * d[None, :]
+    try:
+        L = np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        if exact:
+            return None, d
+    else:
+        return (L, lambda v: solve_triangular(L.T, v)), d
+    lam, V = np.linalg.eigh(S)
+    keep = lam > EIGEN * float(lam.max(initial=0.0))
+    if not np.any(keep):
+        return None, d
+    V, root = V[:, keep], np.sqrt(lam[keep])
+    return (V * root, lambda v: V @ (v / root)), d
+
+
+def _basis(C: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray | None]:
+    """Independent rows ``J`` of ``C`` (indices, in order) and ``T`` with ``C = T C_J`` (``None``
+    when every row is independent: ``T`` the identity).
+
+    Rows are independent unless a pivoted QR of their directions (each row scaled to unit length)
+    finds a diagonal entry below :data:`RANK` of the largest: the rows of a polygon standing for one
+    cone lie in the plane of its two rows on the path, and rounding leaves their dependence near
+    1e-16, where rows of distinct constraints, however close, stay far above it. Written on ``C_J``
+    the small QP has a definite ``Sigma``: the path moves by ``H^-1 C_S' w = H^-1 C_J' (T' w)``.
+    """
+    k = C.shape[0]
+    if k <= 1:
+        return np.arange(k), None
+    used = np.unique(C.indices)  # the columns the rows touch: a few per row
+    dense = C[:, used].toarray()
+    norms = np.linalg.norm(dense, axis=1)
+    unit = dense / np.where(norms > 0, norms, 1.0)[:, None]
+    Rq, piv = qr(unit.T, mode="r", pivoting=True)
+    diag = np.abs(np.diag(Rq))
+    rank = int(np.sum(diag > RANK * diag[0])) if diag.size and diag[0] > 0 else 0
+    if rank == k:
+        return np.arange(k), None
+    # unit[piv].T = Q Rq: the first rank pivots span the rest, unit[piv[j]] = sum_i coef[i, j] unit[piv[i]].
+    coef = solve_triangular(Rq[:rank, :rank], Rq[:rank, :])
+    order = np.argsort(piv[:rank])
+    basis = piv[:rank][order]
+    T = np.zeros((k, rank))
+    T[piv, :] = (coef[order] * (norms[piv][None, :] / norms[basis][:, None])).T
+    return basis, T
+
+
+def _continued(session: solvers.QPSession) -> Callable[[dict[str, Any]], solvers.QPSolution]:
+    """A retry of ``session``'s solve with other settings: continued from its iterate where the
+    backend can (:meth:`solvers.QPSession.resume`), else a new session."""
+
+    def attempt(settings: dict[str, Any]) -> solvers.QPSolution:
+        changed = {k: v for k, v in settings.items() if session.settings.get(k) != v}
+        resumed = session.resume(**changed)
+        return resumed if resumed is not None else type(session)(session.problem, **settings).solve()
+
+    return attempt
 
 
 def _worst(margin: np.ndarray, exclude: np.ndarray, fraction: float, size: np.ndarray) -> np.ndarray:

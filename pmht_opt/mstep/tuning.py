@@ -65,6 +65,7 @@ from solvers import RetryChain
 #: (:mod:`pmht_opt.mstep.condensed`), with the options of the small condensed QP (over the constrained
 #: ones; the caller's settings override both). ``solver_settings={"condense": False}`` turns it off.
 CONDENSED: dict[str, dict[str, Any]] = {
+    "osqp": {"max_iter": 100_000, "polish_tolerance": 1e-9, "sigma": 1e-9},
     "clarabel": {
         "iterative_refinement_enable": True,
         "tol_gap_abs": 1e-10,
@@ -72,6 +73,15 @@ CONDENSED: dict[str, dict[str, Any]] = {
         "tol_feas": 1e-10,
     },
 }
+
+#: Backends whose constrained M-steps are solved on a working set of their rows before the whole QP
+#: (:mod:`pmht_opt.mstep.working`), with the options of those solves (over the constrained ones; the
+#: caller's settings override both). ``solver_settings={"working_set": False}`` turns it off.
+WORKING_SET: dict[str, dict[str, Any]] = {"osqp": {}}
+
+#: Settings tried in turn after a condensed QP's solve failed without an infeasibility verdict (backends
+#: not listed: none), continuing from the failed iterate where the backend can.
+CONDENSED_RETRIES: dict[str, RetryChain] = {"osqp": RetryChain(({"eps_abs": 1e-9, "eps_rel": 1e-9},))}
 
 #: Options of the unconstrained M-step QP per backend (the caller's settings override them).
 DEFAULTS: dict[str, dict[str, Any]] = {
