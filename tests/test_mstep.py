@@ -119,12 +119,20 @@ def test_the_platforms_of_a_constrained_osqp_mstep_share_its_work_budget(scenari
     vmax = 0.5 * float(np.max(np.hypot(free[:, 1:, 1], free[:, 1:, 4])))
     limit = [po.SpeedLimit(vmax)]
     # Without a budget it solves; a budget of a few iterations fails the M-step and names the platform.
+    # (The whole QP's solves: a condensed QP, tens of variables, solves before any budget matters.)
+    whole = {"condense": False, "working_set": False}
     solved = po.solve_mstep(
-        scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": None}
+        scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={**whole, "mstep_work_limit": None}
     )
     assert np.max(np.hypot(solved[:, 1:, 1], solved[:, 1:, 4])) <= vmax * (1 + 1e-3)
     with pytest.raises(po.SolverError, match=r"\(platform \d\).*can all be met.*'mstep_work_limit': None"):
-        po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": 1e6})
+        po.solve_mstep(
+            scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={**whole, "mstep_work_limit": 1e6}
+        )
+    condensed = po.solve_mstep(
+        scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": 1e6}
+    )
+    assert np.max(np.abs(condensed - solved)[:, :, [0, 3]]) <= 1e-3
     with pytest.raises(po.ConfigError, match="mstep_work_limit"):
         po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": -1})
 

@@ -55,6 +55,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 from scipy.linalg import qr, solve_triangular
+from scipy.sparse.csgraph import connected_components
 
 import solvers
 from pmht_opt.model import STATE_DIM, MotionModel
@@ -85,7 +86,7 @@ MAX_ROWS = 160
 #: Most rows on the states in the working set before they are reduced to independent ones
 #: (:func:`_basis`): the rows of a polygon standing for one cone add one variable per direction of
 #: the plane, not one per row.
-MAX_DEPENDENT_ROWS = 4 * MAX_ROWS
+MAX_DEPENDENT_ROWS = 16 * MAX_ROWS
 #: Most independent rows of a working set reduced from dependent ones. Dependent rows are the
 #: polygons of a backend without cones (OSQP), whose whole QP with polygons costs far more than an
 #: interior point's with cones, so the small QP stays the cheaper one up to more rows (B with
@@ -453,31 +454,67 @@ def _basis(C: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray | None]:
     """Independent rows ``J`` of ``C`` (indices, in order) and ``T`` with ``C = T C_J`` (``None``
     when every row is independent: ``T`` the identity).
 
-    Rows are independent unless a pivoted QR of their directions (each row scaled to unit length)
-    finds a diagonal entry below :data:`RANK` of the largest: the rows of a polygon standing for one
-    cone lie in the plane of its two rows on the path, and rounding leaves their dependence near
-    1e-16, where rows of distinct constraints, however close, stay far above it. Written on ``C_J``
-    the small QP has a definite ``Sigma``: the path moves by ``H^-1 C_S' w = H^-1 C_J' (T' w)``.
+    Rows that share no column cannot depend on each other, so the rows are split into the groups
+    that share columns (the rows of one step's constraints: a few rows on a few columns) and each
+    group is tested alone, by a pivoted QR of its rows' directions (each row scaled to unit length): a
+    row whose diagonal entry is below :data:`RANK` of the group's largest depends on the rows before
+    it. The rows of a polygon standing for one cone lie in the plane of its two rows on the path,
+    and rounding leaves their dependence near 1e-16, far below the rows of distinct constraints.
+    (One QR of all the rows together stalled for up to half a second in the threaded BLAS of a
+    loaded machine; the groups' are a few entries each.) Written on ``C_J`` the small QP has a
+    definite ``Sigma``: the path moves by ``H^-1 C_S' w = H^-1 C_J' (T' w)``.
     """
     k = C.shape[0]
     if k <= 1:
         return np.arange(k), None
-    used = np.unique(C.indices)  # the columns the rows touch: a few per row
-    dense = C[:, used].toarray()
+    C = sp.csr_matrix(C)
+    shared = (abs(C) @ abs(C).T).tocsr()
+    n_groups, group = connected_components(shared, directed=False)
+    if n_groups == k:
+        return np.arange(k), None
+    dense = C[:, np.unique(C.indices)].toarray()  # the columns the rows touch: a few per row
     norms = np.linalg.norm(dense, axis=1)
     unit = dense / np.where(norms > 0, norms, 1.0)[:, None]
-    Rq, piv = qr(unit.T, mode="r", pivoting=True)
-    diag = np.abs(np.diag(Rq))
-    rank = int(np.sum(diag > RANK * diag[0])) if diag.size and diag[0] > 0 else 0
-    if rank == k:
+    order = np.argsort(group, kind="stable")
+    bounds = np.flatnonzero(np.diff(np.concatenate(([-1], group[order], [n_groups]))))
+    keep = np.ones(k, dtype=bool)
+    pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (dependent rows, basis rows, coef)
+    for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
+        rows = order[a:b]
+        if rows.size == 1:
+            continue
+        sub = unit[rows]
+        sub = sub[:, np.any(sub != 0.0, axis=0)]
+        Rq, piv = qr(sub.T, mode="r", pivoting=True)
+        diag = np.abs(np.diag(Rq))
+        rank = int(np.sum(diag > RANK * diag[0])) if diag[0] > 0 else 0
+        if rank == rows.size:
+            continue
+        # sub[piv].T = Q Rq: the first rank pivots span the rest, with the coefficients R11^-1 R12.
+        coef = _back_substitution(Rq[:rank, :rank], Rq[:rank, rank:])
+        keep[rows[piv[rank:]]] = False
+        pairs.append((rows[piv[rank:]], rows[piv[:rank]], coef))
+    if keep.all():
         return np.arange(k), None
-    # unit[piv].T = Q Rq: the first rank pivots span the rest, unit[piv[j]] = sum_i coef[i, j] unit[piv[i]].
-    coef = solve_triangular(Rq[:rank, :rank], Rq[:rank, :])
-    order = np.argsort(piv[:rank])
-    basis = piv[:rank][order]
-    T = np.zeros((k, rank))
-    T[piv, :] = (coef[order] * (norms[piv][None, :] / norms[basis][:, None])).T
+    basis = np.flatnonzero(keep)
+    column = np.full(k, -1)
+    column[basis] = np.arange(basis.size)
+    T = np.zeros((k, basis.size))
+    T[basis, column[basis]] = 1.0
+    for dep, base, coef in pairs:
+        # C[dep[j]] = sum_i coef[i, j] norms[dep[j]] / norms[base[i]] C[base[i]].
+        T[dep[:, None], column[base][None, :]] = (coef * (norms[dep][None, :] / norms[base][:, None])).T
     return basis, T
+
+
+def _back_substitution(R: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``R^-1 B`` for a small upper triangular ``R`` (a row of a group at a time): LAPACK's solve with
+    several right-hand sides goes through the threaded BLAS, which stalled for milliseconds per call
+    on a loaded machine, for a few rows."""
+    X = np.zeros_like(B)
+    for i in range(R.shape[0] - 1, -1, -1):
+        X[i] = (B[i] - R[i, i + 1 :] @ X[i + 1 :]) / R[i, i]
+    return X
 
 
 def _continued(session: solvers.QPSession) -> Callable[[dict[str, Any]], solvers.QPSolution]:
