@@ -218,6 +218,8 @@ class CondensedQP:
         self._extra: ExtraRows | None = None
         #: The units that bound the last answer to the current rows.
         self._bound = np.zeros(0, dtype=int)
+        #: The work budget of the current M-step (shared by the small QPs' solves).
+        self._budget: solvers.WorkBudget | None = None
         #: Condensed solves given up in a row, and solves still to leave to the full QP.
         self._failures = 0
         self._skip = 0
@@ -230,9 +232,11 @@ class CondensedQP:
         session_class: type[solvers.QPSession],
         options: dict[str, Any],
         exact: tuple[np.ndarray, np.ndarray],
+        budget: solvers.WorkBudget | None = None,
     ) -> solvers.QPSolution | None:
         """The M-step's solution vector in the full QP's layout, or ``None`` if the condensed solve did
-        not succeed (the caller then solves the full QP).
+        not succeed (the caller then solves the full QP). ``budget`` is the M-step's work, shared with
+        the small QPs' solves (:class:`solvers.WorkBudget`).
 
         ``exact`` is the unconstrained optimum's states and whitened noise, both ``(T, 6)`` (the exact
         smoother's, which the M-step has computed for its check and screening anyway).
@@ -243,6 +247,7 @@ class CondensedQP:
             return None
         if rows.has_state[rows.units.rows(self._bound)].sum() > MAX_DEPENDENT_ROWS:
             return None  # the last answer was bound by more rows than a condensed QP should take
+        self._budget = budget
         answer = self._solve(rows, W, r, session_class, options, exact)
         # After failures in a row, wait 1, 3, 7, ... M-steps (at most SKIP_MAX) before trying again:
         # rows that defeat condensing (long stretches of rows at neighbouring steps, whose Sigma is
@@ -401,6 +406,7 @@ class CondensedQP:
         )
         try:
             session = session_class(problem, **options)
+            session.budget = self._budget
             sol, _ = solvers.retry_failed(session.solve(), options, self.retries, _continued(session))
         except solvers.SettingsError:
             return None
@@ -524,7 +530,11 @@ def _continued(session: solvers.QPSession) -> Callable[[dict[str, Any]], solvers
     def attempt(settings: dict[str, Any]) -> solvers.QPSolution:
         changed = {k: v for k, v in settings.items() if session.settings.get(k) != v}
         resumed = session.resume(**changed)
-        return resumed if resumed is not None else type(session)(session.problem, **settings).solve()
+        if resumed is not None:
+            return resumed
+        fresh = type(session)(session.problem, **settings)
+        fresh.budget = session.budget
+        return fresh.solve()
 
     return attempt
 

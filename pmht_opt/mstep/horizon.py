@@ -230,7 +230,9 @@ class HorizonQP:
                 )
         if self.extra is not None and self.condensed is not None and exact is not None:
             assert self.state.condensed is not None
-            sol = self.condensed.solve(self.extra, W, r, self.session_class, self.state.condensed, exact)
+            sol = self.condensed.solve(
+                self.extra, W, r, self.session_class, self.state.condensed, exact, budget
+            )
             if sol is not None:
                 return sol
             full = self._solve_rows(W, WZ, r, probe, budget, exact)
