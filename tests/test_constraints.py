@@ -407,11 +407,10 @@ def test_inner_polygon_of_a_cone_block_is_inscribed() -> None:
 
 
 @pytest.mark.parametrize("radius", [1e-9, 1e-5, 0.1, 3.0])
-def test_a_hard_polygon_is_scaled_and_backed_off_as_its_cone(radius: float) -> None:
-    """Inner polygons (OSQP's cones) are divided by the cone's radius and shrunk by the cone's
-    back-off: an acceleration limit of 1e-5 or 1e-9 keeps a polygon around its centre (backed off
-    like other linear rows, by 1e-5 absolute, it was empty), and a solver's absolute tolerance on
-    its rows is relative to the radius, as on the cone's own."""
+def test_a_hard_polygon_is_backed_off_as_its_cone(radius: float) -> None:
+    """Inner polygons (OSQP's cones) are shrunk by the cone's relative back-off, and carry the cone's
+    radius for whoever measures their rows relative to it: an acceleration limit of 1e-5 or 1e-9 keeps
+    a polygon around its centre (backed off like other linear rows, by 1e-5 absolute, it was empty)."""
     from pmht_opt.constraints.blocks import disc_block, inner_polygon
     from pmht_opt.mstep.rows import BACKOFF, Imposed, assemble
 
@@ -421,14 +420,13 @@ def test_a_hard_polygon_is_scaled_and_backed_off_as_its_cone(radius: float) -> N
     rows = assemble([Imposed(inner_polygon(cone), "limit")], 6 * T, np.arange(6 * T))
     z = np.zeros(6 * T)
     z[6], z[9] = centre[0]
-    # At the centre: cos(pi / 8) of the normalised radius 1, less the cut (up to the rounding of
-    # coordinates of size 2 divided by the radius).
+    # At the centre: cos(pi / 8) of the radius, less the cut (up to the rounding of coordinates of
+    # size 2), on rows whose coefficients are the faces' unit normals.
     slack = rows.b - rows.A @ z
-    rounding = 64 * np.finfo(float).eps * 2.0 / radius
-    np.testing.assert_allclose(slack, np.cos(np.pi / 8) * (1.0 - BACKOFF), rtol=1e-12, atol=rounding)
-    # Each row's coefficients are its face's unit normal over the radius.
-    norms = np.sqrt(rows.A.multiply(rows.A).sum(axis=1)).A1
-    np.testing.assert_allclose(norms * radius, 1.0, rtol=1e-12)
+    rounding = 64 * np.finfo(float).eps * 2.0
+    np.testing.assert_allclose(slack, np.cos(np.pi / 8) * radius * (1.0 - BACKOFF), rtol=1e-12, atol=rounding)
+    np.testing.assert_allclose(np.sqrt(rows.A.multiply(rows.A).sum(axis=1)).A1, 1.0, rtol=1e-12)
+    np.testing.assert_array_equal(rows.row_size, radius)
 
 
 def test_span_pattern_keeps_one_sparsity_for_moving_rows() -> None:

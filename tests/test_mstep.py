@@ -118,8 +118,8 @@ def test_the_platforms_of_a_constrained_osqp_mstep_share_its_work_budget(scenari
     free = po.solve_mstep(scenario_a, data.W, data.WZ, data.r)
     vmax = 0.5 * float(np.max(np.hypot(free[:, 1:, 1], free[:, 1:, 4])))
     limit = [po.SpeedLimit(vmax)]
-    # Without a budget it solves; a budget of a few iterations fails the M-step and names the platform.
-    # (The whole QP's solves: a condensed QP, tens of variables, solves before any budget matters.)
+    # Without a budget it solves; a budget of a few iterations fails the M-step and names the platform
+    # (the whole QP's solves: without condensing or a working set first).
     whole = {"condense": False, "working_set": False}
     solved = po.solve_mstep(
         scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={**whole, "mstep_work_limit": None}
@@ -129,10 +129,11 @@ def test_the_platforms_of_a_constrained_osqp_mstep_share_its_work_budget(scenari
         po.solve_mstep(
             scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={**whole, "mstep_work_limit": 1e6}
         )
-    condensed = po.solve_mstep(
-        scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": 1e6}
-    )
-    assert np.max(np.abs(condensed - solved)[:, :, [0, 3]]) <= 1e-3
+    # With the default budget, condensing and the working set first: an optimum at least as good (the
+    # whole QP's ADMM stops 1e-5 from its optimum; positions along a binding limit are that flat).
+    default = po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "osqp", limit)
+    costs = [mstep_objective(scenario_a.model, s, data.W, data.WZ, data.r) for s in (default, solved)]
+    assert costs[0] <= costs[1] + 1e-6 * abs(costs[1])
     with pytest.raises(po.ConfigError, match="mstep_work_limit"):
         po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": -1})
 

@@ -96,6 +96,13 @@ MAX_BASIS = 400
 #: Most solves of a working set again, with the small QP's right-hand side corrected by what its
 #: rows' slacks on the path differ from its own.
 REFINE = 2
+#: The work (iterations times size, :class:`solvers.WorkBudget`) the small QPs of one condensed
+#: attempt may spend together, on backends that count it (OSQP): as much as a whole M-step's
+#: (:data:`pmht_opt.mstep.tuning.MSTEP_WORK`). A small QP of a limit binding over long stretches
+#: (hundreds of variables, dense rows) can use it up without settling; charged to the M-step's budget
+#: it left none for the whole QP (B at T = 150 with a soft SpeedLimit(0.06)), and at 1e9 B with
+#: VisitAll(0.05) gave up a condensed QP that 2e9 solves.
+ATTEMPT_WORK = 2e9
 #: Most M-steps left to the full QP after condensed solves that did not succeed.
 SKIP_MAX = 15
 #: Rows of the working set whose direction is within this (relative) of the others' span depend on
@@ -232,11 +239,11 @@ class CondensedQP:
         session_class: type[solvers.QPSession],
         options: dict[str, Any],
         exact: tuple[np.ndarray, np.ndarray],
-        budget: solvers.WorkBudget | None = None,
     ) -> solvers.QPSolution | None:
         """The M-step's solution vector in the full QP's layout, or ``None`` if the condensed solve did
-        not succeed (the caller then solves the full QP). ``budget`` is the M-step's work, shared with
-        the small QPs' solves (:class:`solvers.WorkBudget`).
+        not succeed (the caller then solves the full QP). The small QPs of one call share a work budget
+        of :data:`ATTEMPT_WORK` (:class:`solvers.WorkBudget`, counted by first-order backends), apart
+        from the M-step's: an attempt that does not settle leaves the whole QP the work it had.
 
         ``exact`` is the unconstrained optimum's states and whitened noise, both ``(T, 6)`` (the exact
         smoother's, which the M-step has computed for its check and screening anyway).
@@ -247,7 +254,7 @@ class CondensedQP:
             return None
         if rows.has_state[rows.units.rows(self._bound)].sum() > MAX_DEPENDENT_ROWS:
             return None  # the last answer was bound by more rows than a condensed QP should take
-        self._budget = budget
+        self._budget = solvers.WorkBudget(ATTEMPT_WORK)
         answer = self._solve(rows, W, r, session_class, options, exact)
         # After failures in a row, wait 1, 3, 7, ... M-steps (at most SKIP_MAX) before trying again:
         # rows that defeat condensing (long stretches of rows at neighbouring steps, whose Sigma is

@@ -230,9 +230,7 @@ class HorizonQP:
                 )
         if self.extra is not None and self.condensed is not None and exact is not None:
             assert self.state.condensed is not None
-            sol = self.condensed.solve(
-                self.extra, W, r, self.session_class, self.state.condensed, exact, budget
-            )
+            sol = self.condensed.solve(self.extra, W, r, self.session_class, self.state.condensed, exact)
             if sol is not None:
                 return sol
             full = self._solve_rows(W, WZ, r, probe, budget, exact)
