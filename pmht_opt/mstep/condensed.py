@@ -97,12 +97,14 @@ MAX_BASIS = 400
 #: rows' slacks on the path differ from its own.
 REFINE = 2
 #: The work (iterations times size, :class:`solvers.WorkBudget`) the small QPs of one condensed
-#: attempt may spend together, on backends that count it (OSQP): as much as a whole M-step's
-#: (:data:`pmht_opt.mstep.tuning.MSTEP_WORK`). A small QP of a limit binding over long stretches
-#: (hundreds of variables, dense rows) can use it up without settling; charged to the M-step's budget
-#: it left none for the whole QP (B at T = 150 with a soft SpeedLimit(0.06)), and at 1e9 B with
-#: VisitAll(0.05) gave up a condensed QP that 2e9 solves.
-ATTEMPT_WORK = 2e9
+#: attempt may spend together, on backends that count it (OSQP): twice a whole M-step's
+#: (:data:`pmht_opt.mstep.tuning.MSTEP_WORK`), apart from it. The first imposition of guaranteed
+#: visits in polygons makes a small QP of 140 variables and 789 dense rows that needed more than 2e9
+#: (plan_smoothed of C seed 1000, radius 0.1: that M-step then took 14 s through the whole QP, 5 s
+#: condensed). A small QP of a limit binding over long stretches can use it up without settling;
+#: charged to the M-step's budget it left none for the whole QP (B at T = 150 with a soft
+#: SpeedLimit(0.06)).
+ATTEMPT_WORK = 4e9
 #: Most M-steps left to the full QP after condensed solves that did not succeed.
 SKIP_MAX = 15
 #: Rows of the working set whose direction is within this (relative) of the others' span depend on

@@ -65,7 +65,7 @@ from solvers import RetryChain
 #: (:mod:`pmht_opt.mstep.condensed`), with the options of the small condensed QP (over the constrained
 #: ones; the caller's settings override both). ``solver_settings={"condense": False}`` turns it off.
 CONDENSED: dict[str, dict[str, Any]] = {
-    "osqp": {"max_iter": 100_000, "work_limit": 1e9, "polish_tolerance": 1e-9, "sigma": 1e-9},
+    "osqp": {"max_iter": 100_000, "polish_tolerance": 1e-9, "sigma": 1e-9},
     "clarabel": {
         "iterative_refinement_enable": True,
         "tol_gap_abs": 1e-10,
