@@ -270,11 +270,11 @@ def test_responses_of_no_new_rows_add_nothing() -> None:
     """Rows already seen, or rows without entries, add no response and no solve."""
     import scipy.sparse as sp
 
-    from pmht_opt.mstep.condensed import _Responses
+    from pmht_opt.mstep.responses import Responses
 
     C = sp.random(8, 6 * 5, density=0.3, format="csr", random_state=0).tolil()
     C[3, :] = 0
-    responses = _Responses(sp.csr_matrix(C), factor=None, T=5)  # type: ignore[arg-type]  # never solves
+    responses = Responses(sp.csr_matrix(C), factor=None, T=5)  # type: ignore[arg-type]  # never solves
     responses._add([])
     responses._add([3])
     assert responses.R.shape == (15, 0) and responses._parts == {3: []}
@@ -323,3 +323,22 @@ def test_an_osqp_plan_under_a_speed_limit_solves() -> None:
     res = po.plan_pmht(sc, po.PMHTConfig(solver="osqp", constraints=cons, threads=1))
     assert res.max_violation <= tolerance("osqp", cons[0], sc)
     assert res.history.mstep_status[-1] is Status.OPTIMAL
+
+
+def test_row_basis_keeps_two_rows_of_each_polygon() -> None:
+    """The rows of an inner polygon are combinations of its cone's two rows: a basis of two per
+    polygon, which gives back every row; rows that share no column stay independent."""
+    import scipy.sparse as sp
+
+    from pmht_opt.constraints.blocks import disc_block, inner_polygon
+    from pmht_opt.mstep.basis import row_basis
+
+    T = 6
+    cones = disc_block(0, T, np.array([2, 3, 5]), (0, 3), np.ones((3, 2)), np.full(3, 0.1), sides=16)
+    poly = inner_polygon(cones).G.tocsr()
+    rows = sp.vstack([poly, sp.csr_matrix(([1.0], ([0], [6 * 3 + 1])), shape=(1, 6 * T))]).tocsr()
+    basis, T_map = row_basis(rows)
+    assert basis.size == 3 * 2 + 1 and T_map is not None
+    np.testing.assert_allclose(T_map @ rows[basis].toarray(), rows.toarray(), atol=1e-14)
+    alone, none = row_basis(rows[basis])
+    assert none is None and alone.size == basis.size

@@ -54,15 +54,15 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import qr, solve_triangular
-from scipy.sparse.csgraph import connected_components
 
 import solvers
 from pmht_opt.model import STATE_DIM, MotionModel
+from pmht_opt.mstep.basis import PIVOT, factor_sigma, row_basis
 from pmht_opt.mstep.formulation import BLOCK, QPLayout
+from pmht_opt.mstep.responses import Responses
 from pmht_opt.mstep.rows import ExtraRows
 from pmht_opt.mstep.units import CondensedRows
-from solvers.banded import BandedFactor, BandedSmoother
+from solvers.banded import BandedSmoother
 
 #: A unit outside the working set counts as met when its violation (``-s`` of a linear row,
 #: ``||s_1..|| - s_0`` of a cone, in the rows' own scale: cones have radius 1, linear rows unit
@@ -84,8 +84,8 @@ MAX_ROUNDS = 16
 #: cheaper, so it is solved instead.
 MAX_ROWS = 160
 #: Most rows on the states in the working set before they are reduced to independent ones
-#: (:func:`_basis`): the rows of a polygon standing for one cone add one variable per direction of
-#: the plane, not one per row.
+#: (:func:`~pmht_opt.mstep.basis.row_basis`): the rows of a polygon standing for one cone add one
+#: variable per direction of the plane, not one per row.
 MAX_DEPENDENT_ROWS = 16 * MAX_ROWS
 #: Most independent rows of a working set reduced from dependent ones. Dependent rows are the
 #: polygons of a backend without cones (OSQP), whose whole QP with polygons costs far more than an
@@ -107,103 +107,6 @@ REFINE = 2
 ATTEMPT_WORK = 4e9
 #: Most M-steps left to the full QP after condensed solves that did not succeed.
 SKIP_MAX = 15
-#: Rows of the working set whose direction is within this (relative) of the others' span depend on
-#: them (:func:`_basis`).
-RANK = 1e-9
-#: Below this least pivot of the small QP's scaled ``Sigma`` (relative to its unit diagonal) the rows
-#: are tested for dependence (:func:`_basis`): rows that depend on each other leave pivots of rounding
-#: size where the factorisation does not fail outright.
-PIVOT = 1e-13
-#: Eigenvalues of a scaled ``Sigma`` that is not definite kept above this fraction of the largest
-#: (:func:`_factor`).
-EIGEN = 1e-12
-
-
-class _Responses:
-    """The responses ``H^-1 c`` of rows ``c`` of ``C`` to the factorised ``H``, solved as rows join the
-    working set, and the path's response to ``C_S' w``.
-
-    ``H`` is the same for both axes and does not couple them, so a row's response is that of its x
-    part on the x axis plus that of its y part on the y axis, and parts that are multiples of one
-    pattern (a visit's x and y rows, a speed cone's two components, the two walls of a bound) share
-    one solve of the one-axis system.
-    """
-
-    def __init__(self, C: sp.csr_matrix, factor: BandedFactor, T: int) -> None:
-        self.C, self.factor, self.T = C, factor, T
-        #: Per-axis responses ``(3 T, columns)``, and the column of each pattern.
-        self.R = np.zeros((3 * T, 0))
-        self._pattern: dict[bytes, int] = {}
-        #: Per row: ``(axis, column, scale)`` of each part.
-        self._parts: dict[int, list[tuple[int, int, float]]] = {}
-
-    def _add(self, new: list[int]) -> None:
-        """Solve for the patterns of rows ``new`` not seen yet (without iterative refinement: the
-        responses only form the small QP's matrix ``Sigma``, whose rounding moves the optimum ``w``
-        by as little; the path itself is solved refined, :meth:`apply`)."""
-        parts: dict[int, list[tuple[int, int, float]]] = {i: [] for i in new}
-        sub = self.C[new]
-        if sub.nnz == 0:  # nothing new, or rows without entries: no response to solve
-            self._parts.update(parts)
-            return
-        # Every row's parts: its entries on one axis, in the matrix's order, as (row, axis) segments.
-        cols, vals = sub.indices, sub.data
-        segment = np.repeat(2 * np.arange(len(new)), np.diff(sub.indptr)) + (cols % STATE_DIM) // 3
-        order = np.argsort(segment, kind="stable")
-        cols, vals, segment = cols[order], vals[order], segment[order]
-        starts = np.flatnonzero(np.concatenate(([True], segment[1:] != segment[:-1])))
-        ends = np.append(starts[1:], segment.size)
-        scale = vals[starts]
-        idx = 3 * (cols // STATE_DIM) + cols % 3  # in the one-axis stacked states
-        shape = vals / np.repeat(scale, ends - starts)
-        forces: list[tuple[np.ndarray, np.ndarray]] = []
-        spans = zip(starts.tolist(), ends.tolist(), segment[starts].tolist(), scale.tolist(), strict=True)
-        for a, b, seg, sc in spans:
-            key = idx[a:b].tobytes() + shape[a:b].tobytes()
-            column = self._pattern.get(key)
-            if column is None:
-                column = self._pattern[key] = self.R.shape[1] + len(forces)
-                forces.append((idx[a:b], shape[a:b]))
-            parts[new[seg // 2]].append((seg % 2, column, sc))
-        self._parts.update(parts)
-        if forces:
-            force = np.zeros((3 * self.T, len(forces)))
-            rows = np.concatenate([f[0] for f in forces])
-            which = np.repeat(np.arange(len(forces)), [f[0].size for f in forces])
-            force[rows, which] = np.concatenate([f[1] for f in forces])
-            st, _ = self.factor.solve(force.reshape(1, self.T, 3, len(forces)), refine=0)
-            self.R = np.concatenate([self.R, st[0].reshape(3 * self.T, len(forces))], axis=1)
-
-    def sigma(self, state_rows: np.ndarray) -> np.ndarray:
-        """``Sigma = C_S H^-1 C_S'`` of ``state_rows``, symmetrised."""
-        rows = state_rows.tolist()
-        self._add([i for i in rows if i not in self._parts])
-        k = len(rows)
-        resp = np.zeros((2, 3 * self.T, k))
-        parts = [(axis, j, col, scale) for j, i in enumerate(rows) for axis, col, scale in self._parts[i]]
-        if parts:
-            axes, js, columns, scales = (np.array(v) for v in zip(*parts, strict=True))
-            resp[axes, :, js] = (self.R[:, columns] * scales).T
-        sub = self.C[state_rows].tocoo()
-        axis = (sub.col % STATE_DIM) // 3
-        idx = 3 * (sub.col // STATE_DIM) + sub.col % 3
-        sigma = np.zeros((k, k))
-        for a in (0, 1):
-            on = axis == a
-            part = sp.csr_matrix((sub.data[on], (sub.row[on], idx[on])), shape=(k, 3 * self.T))
-            sigma += part @ resp[a]
-        return 0.5 * (sigma + sigma.T)
-
-    def apply(self, state_rows: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The states and whitened noise, both ``(6 T,)``, of ``H^-1 C_S' w``: one refined solve."""
-        if state_rows.size == 0:
-            zero = np.zeros(STATE_DIM * self.T)
-            return zero, zero.copy()
-        push = (self.C[state_rows].T @ w).reshape(self.T, 2, 3)
-        st, nz = self.factor.solve(np.moveaxis(push, 1, -1)[None])
-        return _stack(st[0]).ravel(), _stack(nz[0]).ravel()
-
-
 class CondensedQP:
     """The condensed constrained M-step of one platform over one horizon (module docstring).
 
@@ -285,7 +188,7 @@ class CondensedQP:
         # every unit the unconstrained optimum violates.
         first = _worst(margin, self._bound, WORST if self._bound.size else 0.0, rows.size)
         units = np.union1d(np.union1d(rows.always, first), self._bound)
-        responses = _Responses(rows.C, factor, self.T)
+        responses = Responses(rows.C, factor, self.T)
         iterations = refined = 0
         # What the rows' slacks on the path differ from the small QP's by, added to its right-hand side.
         shift = np.zeros(rows.b.size)
@@ -350,7 +253,7 @@ class CondensedQP:
         self,
         rows: CondensedRows,
         units: np.ndarray,
-        responses: _Responses,
+        responses: Responses,
         session_class: type[solvers.QPSession],
         options: dict[str, Any],
         X0: np.ndarray,
@@ -385,16 +288,16 @@ class CondensedQP:
         # ones, C_S = T C_J, and Sigma_J takes Sigma's place.
         basis, T = np.arange(k), None
         if k > MAX_ROWS:  # more rows than a small QP takes, unless they depend on each other
-            basis, T = _basis(rows.C[state_rows])
+            basis, T = row_basis(rows.C[state_rows])
             if basis.size > (MAX_ROWS if T is None else MAX_BASIS):
                 return None
         sigma = responses.sigma(state_rows[basis])
-        root, d = _factor(sigma)
+        root, d = factor_sigma(sigma)
         if T is None and (root is None or np.min(np.diag(root[0])) ** 2 <= PIVOT):
-            basis, T = _basis(rows.C[state_rows])
+            basis, T = row_basis(rows.C[state_rows])
             if T is not None:
                 sigma = sigma[np.ix_(basis, basis)]
-            root, d = _factor(sigma, exact=False) if T is not None or root is None else (root, d)
+            root, d = factor_sigma(sigma, exact=False) if T is not None or root is None else (root, d)
         if root is None:  # Sigma singular to working precision: the full QP takes the rows
             return None
         F, back = root
@@ -434,104 +337,6 @@ class CondensedQP:
         return np.concatenate([body.ravel(), slack])
 
 
-Root = tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]
-
-
-def _factor(sigma: np.ndarray, exact: bool = True) -> tuple[Root | None, np.ndarray]:
-    """``((F, back), d)``: the Jacobi scaling ``d`` of ``sigma``, ``F`` with ``F F' = d sigma d`` and
-    ``back(v)`` a ``u`` with ``F' u = v``; ``None`` for the pair if there is none to trust.
-
-    ``F`` is the lower Cholesky factor (``back`` its triangular solve). Where that fails and not
-    ``exact``, ``F`` holds the eigenvectors of the eigenvalues above :data:`EIGEN` of the largest,
-    scaled by their roots: rows whose dependence comes through the dynamics (positions at
-    neighbouring steps of a path this smooth move together to within rounding) then share one
-    variable, and the answer is checked on the path like any other.
-    """
-    diag = np.diag(sigma)
-    d = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), 1.0)
-    S = d[:, None] * sigma * d[None, :]
-    try:
-        L = np.linalg.cholesky(S)
-    except np.linalg.LinAlgError:
-        if exact:
-            return None, d
-    else:
-        return (L, lambda v: solve_triangular(L.T, v)), d
-    lam, V = np.linalg.eigh(S)
-    keep = lam > EIGEN * float(lam.max(initial=0.0))
-    if not np.any(keep):
-        return None, d
-    V, root = V[:, keep], np.sqrt(lam[keep])
-    return (V * root, lambda v: V @ (v / root)), d
-
-
-def _basis(C: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray | None]:
-    """Independent rows ``J`` of ``C`` (indices, in order) and ``T`` with ``C = T C_J`` (``None``
-    when every row is independent: ``T`` the identity).
-
-    Rows that share no column cannot depend on each other, so the rows are split into the groups
-    that share columns (the rows of one step's constraints: a few rows on a few columns) and each
-    group is tested alone, by a pivoted QR of its rows' directions (each row scaled to unit length): a
-    row whose diagonal entry is below :data:`RANK` of the group's largest depends on the rows before
-    it. The rows of a polygon standing for one cone lie in the plane of its two rows on the path,
-    and rounding leaves their dependence near 1e-16, far below the rows of distinct constraints.
-    (One QR of all the rows together stalled for up to half a second in the threaded BLAS of a
-    loaded machine; the groups' are a few entries each.) Written on ``C_J`` the small QP has a
-    definite ``Sigma``: the path moves by ``H^-1 C_S' w = H^-1 C_J' (T' w)``.
-    """
-    k = C.shape[0]
-    if k <= 1:
-        return np.arange(k), None
-    C = sp.csr_matrix(C)
-    shared = (abs(C) @ abs(C).T).tocsr()
-    n_groups, group = connected_components(shared, directed=False)
-    if n_groups == k:
-        return np.arange(k), None
-    dense = C[:, np.unique(C.indices)].toarray()  # the columns the rows touch: a few per row
-    norms = np.linalg.norm(dense, axis=1)
-    unit = dense / np.where(norms > 0, norms, 1.0)[:, None]
-    order = np.argsort(group, kind="stable")
-    bounds = np.flatnonzero(np.diff(np.concatenate(([-1], group[order], [n_groups]))))
-    keep = np.ones(k, dtype=bool)
-    pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (dependent rows, basis rows, coef)
-    for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
-        rows = order[a:b]
-        if rows.size == 1:
-            continue
-        sub = unit[rows]
-        sub = sub[:, np.any(sub != 0.0, axis=0)]
-        Rq, piv = qr(sub.T, mode="r", pivoting=True)
-        diag = np.abs(np.diag(Rq))
-        rank = int(np.sum(diag > RANK * diag[0])) if diag[0] > 0 else 0
-        if rank == rows.size:
-            continue
-        # sub[piv].T = Q Rq: the first rank pivots span the rest, with the coefficients R11^-1 R12.
-        coef = _back_substitution(Rq[:rank, :rank], Rq[:rank, rank:])
-        keep[rows[piv[rank:]]] = False
-        pairs.append((rows[piv[rank:]], rows[piv[:rank]], coef))
-    if keep.all():
-        return np.arange(k), None
-    basis = np.flatnonzero(keep)
-    column = np.full(k, -1)
-    column[basis] = np.arange(basis.size)
-    T = np.zeros((k, basis.size))
-    T[basis, column[basis]] = 1.0
-    for dep, base, coef in pairs:
-        # C[dep[j]] = sum_i coef[i, j] norms[dep[j]] / norms[base[i]] C[base[i]].
-        T[dep[:, None], column[base][None, :]] = (coef * (norms[dep][None, :] / norms[base][:, None])).T
-    return basis, T
-
-
-def _back_substitution(R: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """``R^-1 B`` for a small upper triangular ``R`` (a row of a group at a time): LAPACK's solve with
-    several right-hand sides goes through the threaded BLAS, which stalled for milliseconds per call
-    on a loaded machine, for a few rows."""
-    X = np.zeros_like(B)
-    for i in range(R.shape[0] - 1, -1, -1):
-        X[i] = (B[i] - R[i, i + 1 :] @ X[i + 1 :]) / R[i, i]
-    return X
-
-
 def _continued(session: solvers.QPSession) -> Callable[[dict[str, Any]], solvers.QPSolution]:
     """A retry of ``session``'s solve with other settings: continued from its iterate where the
     backend can (:meth:`solvers.QPSession.resume`), else a new session."""
@@ -568,7 +373,3 @@ def _missed_in(margin: np.ndarray, kind: np.ndarray, size: np.ndarray) -> bool:
     least = np.where(kind == 0, 0.0, MET) + ROUNDING * np.maximum(size, 1.0)
     return bool(np.any(-margin > least))
 
-
-def _stack(per_axis: np.ndarray) -> np.ndarray:
-    """``(T, 3, 2)`` per-axis states as ``(T, 6)`` ``[px, vx, ax, py, vy, ay]``."""
-    return np.concatenate([per_axis[..., 0], per_axis[..., 1]], axis=1)

@@ -45,6 +45,15 @@ Why each value (figures in docs/decisions.md sections 2 and 3):
   the small QP has tens of variables, so iterative refinement and tolerances of 1e-10 cost little;
   at Clarabel's defaults a guaranteed-visits M-step's cost ended 1.5e-7 (relative) above the full
   QP's, at 1e-10 within 1e-8 of it.
+* OSQP, constrained M-steps condensed too: its whole QP with polygons fails or takes tens of seconds
+  where a few rows bind (guaranteed visits: 9 of the stress sweep's visit cases failed). The small QP
+  (an identity Hessian, dense rows of a few hundred entries) costs microseconds per ADMM iteration but
+  may need 10000 of them where visits sit at neighbouring steps, so its cap is 100000; ``sigma =
+  1e-9`` lets its polish converge, and the polished answer must meet 1e-9 (``polish_tolerance``),
+  since the path must then meet every row of the working set to 1e-9; a failed polish is retried at
+  1e-9 from its iterate (:data:`CONDENSED_RETRIES`). Where condensing does not settle, the whole QP is
+  first solved on a working set of its rows (:data:`WORKING_SET`): a speed limit of 0.02 on B binds
+  at a few hundred of its 8000 polygon rows.
 * Retries (:class:`solvers.RetryChain`), tried in turn when a solve fails without an infeasibility
   verdict; a set that touches a setting the caller chose is skipped, and the set that solves is kept
   for that platform's later solves. Clarabel: iterative refinement (rescues "insufficient progress"
