@@ -105,6 +105,12 @@ REFINE = 2
 #: charged to the M-step's budget it left none for the whole QP (B at T = 150 with a soft
 #: SpeedLimit(0.06)).
 ATTEMPT_WORK = 4e9
+#: An attempt that spends more work than this (OSQP: about 0.5 s of ADMM on small dense QPs) marks its
+#: rows as costly to condense: a limit binding over long stretches (A with SpeedLimit(0.05): 145 small
+#: QPs in 25 M-steps, 55 s, against 1.1 s for the working sets of the whole QP), so the next M-step
+#: tries a working set first and condenses only if that does not settle (guaranteed visits, where
+#: the working set's ADMM does not).
+COSTLY_WORK = 2e8
 #: Most M-steps left to the full QP after condensed solves that did not succeed.
 SKIP_MAX = 15
 class CondensedQP:
@@ -130,8 +136,11 @@ class CondensedQP:
         self._extra: ExtraRows | None = None
         #: The units that bound the last answer to the current rows.
         self._bound = np.zeros(0, dtype=int)
-        #: The work budget of the current M-step (shared by the small QPs' solves).
+        #: The work budget of the current attempt (shared by its small QPs' solves).
         self._budget: solvers.WorkBudget | None = None
+        #: Whether the last attempt spent more than :data:`COSTLY_WORK`: the caller then tries a
+        #: working set of the whole QP's rows first (:mod:`pmht_opt.mstep.working`).
+        self.costly = False
         #: Condensed solves given up in a row, and solves still to leave to the full QP.
         self._failures = 0
         self._skip = 0
@@ -161,6 +170,7 @@ class CondensedQP:
             return None  # the last answer was bound by more rows than a condensed QP should take
         self._budget = solvers.WorkBudget(ATTEMPT_WORK)
         answer = self._solve(rows, W, r, session_class, options, exact)
+        self.costly = self._budget.spent > COSTLY_WORK
         # After failures in a row, wait 1, 3, 7, ... M-steps (at most SKIP_MAX) before trying again:
         # rows that defeat condensing (long stretches of rows at neighbouring steps, whose Sigma is
         # singular to working precision) tend to stay, and each attempt costs more than its full QP.
