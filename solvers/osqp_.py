@@ -7,6 +7,15 @@ Retrying a failed solve with other settings is a policy of the caller (:mod:`sol
 retry that only raises the iteration limit or changes tolerances continues from the stopped iterate
 (:meth:`OSQPSession.resume`).
 
+``polish_tolerance`` (a setting of this layer, not OSQP's) is the accuracy a "solved" answer must
+have: its residuals must meet the tolerance in the form of OSQP's own termination test (absolute plus
+relative, the same number for both), else it is reported as inaccurate (``"solved, not polished"``).
+It is for callers that run ADMM only to a loose tolerance and rely on polishing for accuracy: set far
+below ADMM's tolerance, it is met by a polished answer whose refinement has converged and by nothing
+else (OSQP accepts any polish that lowers both residuals). On an equality-constrained QP polishing is
+the solve of the whole KKT system (every equality row is in its active set) refined against the
+unregularised matrix: exact to rounding once the refinement has converged.
+
 ``work_limit`` (a setting of this layer, not OSQP's) bounds the work of a session on one set of
 numbers: iterations times the problem's size (stored entries of ``P`` and ``A`` plus rows and
 columns, roughly proportional to the cost of an iteration), summed over the solves since the last
@@ -84,8 +93,11 @@ RESUMABLE = frozenset(
         "polish_refine_iter",
         "check_termination",
         "check_dualgap",
+        "polish_tolerance",
     )
 )
+#: Settings of this layer, not passed to OSQP.
+LAYER = frozenset(("work_limit", "polish_tolerance"))
 
 
 class OSQPSession(QPSession):
@@ -134,6 +146,7 @@ class OSQPSession(QPSession):
         opts = {**DEFAULTS, **self.settings}
         limit = opts.pop("work_limit", None)
         self._work_limit = None if limit is None else work_amount("work_limit", limit)
+        self._polish_tol = _tolerance(opts.pop("polish_tolerance", None))
         self._max_iter = int(opts["max_iter"])
         #: This session's own budget on the current numbers (renewed by every update).
         self._own = None if self._work_limit is None else WorkBudget(self._work_limit)
@@ -165,13 +178,28 @@ class OSQPSession(QPSession):
             except osqp.OSQPException as err:
                 raise UpdateError(f"OSQP rejected the update: {_error_name(err)}.") from err
 
+    def warm_start(self, x: np.ndarray | None = None, y: np.ndarray | None = None) -> bool:
+        """Start the next ADMM iterations from ``x`` and ``y`` (OSQP's ``warm_start``; an omitted one
+        keeps its current iterate)."""
+        prob = self.problem
+        kwargs: dict[str, np.ndarray] = {}
+        if x is not None:
+            kwargs["x"] = _checked_start("x", x, prob.n)
+        if y is not None:
+            kwargs["y"] = _checked_start("y", y, prob.m)
+        if kwargs:
+            self._solver.warm_start(**kwargs)
+        return True
+
     def resume(self, **settings: Any) -> QPSolution | None:
         """Continue from the last iterate with ``settings`` changed (only :data:`RESUMABLE` ones;
         otherwise ``None``). ``max_iter`` counts the iterations of this solve."""
         if not set(settings) <= RESUMABLE:
             return None
+        if "polish_tolerance" in settings:
+            self._polish_tol = _tolerance(settings["polish_tolerance"])
         try:
-            self._solver.update_settings(**settings)
+            self._solver.update_settings(**{k: v for k, v in settings.items() if k not in LAYER})
         except (TypeError, ValueError) as err:
             raise SettingsError(f"OSQP rejected its settings: {err}") from err
         except osqp.OSQPException as err:
@@ -179,6 +207,24 @@ class OSQPSession(QPSession):
         self.settings.update(settings)
         self._max_iter = int(settings.get("max_iter", self._max_iter))
         return self.solve()
+
+    def _polished(self, info: Any, x: np.ndarray | None, y: np.ndarray | None) -> bool:
+        """Whether a solved answer meets ``polish_tolerance`` (always, without one): its residuals
+        (OSQP's, of the polished point if polishing succeeded) within the tolerance in OSQP's form,
+        ``eps (1 + the largest of the norms the residual is a difference of)``. An ADMM iterate that
+        meets it counts too (a problem whose answer is its starting point: polishing then finds
+        nothing to lower and reports a failure)."""
+        eps = self._polish_tol
+        if eps is None:
+            return True
+        if x is None or y is None:
+            return False
+        prob = self.problem
+        Px = prob.P @ x + prob.P.T @ x - prob.P.diagonal() * x
+        Ax = prob.A @ x
+        prim_scale = max(_norm(Ax), _norm(np.clip(Ax, *self._bounds())))
+        dual_scale = max(_norm(Px), _norm(prob.A.T @ y), _norm(prob.q))
+        return bool(info.prim_res <= eps * (1.0 + prim_scale) and info.dual_res <= eps * (1.0 + dual_scale))
 
     def _solve(self) -> QPSolution:
         room = self._iteration_room()
@@ -199,13 +245,16 @@ class OSQPSession(QPSession):
             if budget is not None:
                 budget.spend(int(info.iter) * self.size)
         status = _STATUS.get(osqp.SolverStatus(info.status_val), Status.UNKNOWN)
+        raw = str(info.status)
         x = None if res.x is None or not np.all(np.isfinite(res.x)) else np.array(res.x)
         if x is None and status is Status.OPTIMAL:
             status = Status.NUMERICAL_ERROR
+        if status is Status.OPTIMAL and not self._polished(info, x, res.y):
+            status, raw = Status.OPTIMAL_INACCURATE, f"{raw}, not polished"
         return QPSolution(
             status=status,
             backend=self.name,
-            raw_status=str(info.status),
+            raw_status=raw,
             x=x,
             y=None if res.y is None else np.array(res.y),
             objective=float(info.obj_val),
@@ -218,3 +267,22 @@ class OSQPSession(QPSession):
                 "rho_updates": int(info.rho_updates),
             },
         )
+
+
+def _tolerance(value: object) -> float | None:
+    """``polish_tolerance`` checked: ``None`` or a positive finite number."""
+    if value is None:
+        return None
+    return work_amount("polish_tolerance", value)
+
+
+def _norm(v: np.ndarray) -> float:
+    return float(np.max(np.abs(v), initial=0.0))
+
+
+def _checked_start(name: str, values: np.ndarray, size: int) -> np.ndarray:
+    """A starting point of ``size`` finite numbers, or :class:`ProblemError` naming it."""
+    arr = np.asarray(values, dtype=float).reshape(-1)
+    if arr.shape[0] != size or not np.all(np.isfinite(arr)):
+        raise ProblemError(f"warm start {name}: expected {size} finite numbers, got {arr.shape[0]}.")
+    return arr

@@ -170,6 +170,16 @@ class QPSession(abc.ABC):
         """
         return None
 
+    def warm_start(self, x: np.ndarray | None = None, y: np.ndarray | None = None) -> bool:
+        """Start the next solve from the primal ``x`` and the dual ``y`` (either may be ``None``);
+        ``False`` if the backend has no use for a starting point.
+
+        A first-order backend starts from where it is told, so a point near the answer saves
+        iterations; an interior point starts from its own central point whatever it is given. The
+        default is ``False``.
+        """
+        return False
+
     def solve(self) -> QPSolution:
         """Solve the current problem and return the backend's answer with a mapped status.
 

@@ -192,10 +192,11 @@ def test_cli_anneal_options(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     from pmht_opt.cli import main
 
     out = tmp_path / "demo.png"
-    assert main(["demo", "--planner", "pmht", "--iterations", "2", "--quiet", "--anneal", "0.5", "2", "--out", str(out)]) == 0
+    demo = ["demo", "--planner", "pmht", "--iterations", "2", "--quiet"]
+    assert main([*demo, "--anneal", "0.5", "2", "--out", str(out)]) == 0
     assert "geometric from r=0.5 over 2 iterations" in capsys.readouterr().out
     assert out.stat().st_size > 0
-    assert main(["demo", "--planner", "pmht", "--iterations", "2", "--quiet", "--no-anneal", "--out", str(out)]) == 0
+    assert main([*demo, "--no-anneal", "--out", str(out)]) == 0
     assert "annealing" in capsys.readouterr().out
-    assert main(["demo", "--planner", "pmht", "--iterations", "2", "--quiet", "--anneal", "x", "2"]) == 2
+    assert main([*demo, "--anneal", "x", "2"]) == 2
     assert "--anneal" in capsys.readouterr().err

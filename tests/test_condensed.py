@@ -15,7 +15,7 @@ import pmht_opt as po
 from pmht_opt.mstep import MStepData, make_mstep, mstep_objective
 from pmht_opt.mstep.condensed import CondensedQP
 from pmht_opt.verify import tolerance
-from solvers import ProblemError
+from solvers import ProblemError, Status
 from solvers.banded import BandedSmoother
 
 FULL = {"condense": False}
@@ -270,11 +270,75 @@ def test_responses_of_no_new_rows_add_nothing() -> None:
     """Rows already seen, or rows without entries, add no response and no solve."""
     import scipy.sparse as sp
 
-    from pmht_opt.mstep.condensed import _Responses
+    from pmht_opt.mstep.responses import Responses
 
     C = sp.random(8, 6 * 5, density=0.3, format="csr", random_state=0).tolil()
     C[3, :] = 0
-    responses = _Responses(sp.csr_matrix(C), factor=None, T=5)  # type: ignore[arg-type]  # never solves
+    responses = Responses(sp.csr_matrix(C), factor=None, T=5)  # type: ignore[arg-type]  # never solves
     responses._add([])
     responses._add([3])
     assert responses.R.shape == (15, 0) and responses._parts == {3: []}
+
+
+@pytest.mark.parametrize("case", ["speed+area", "terminal"])
+def test_osqp_condenses_polygons_onto_a_basis_of_their_rows(
+    case: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """OSQP's cones are inner polygons, whose rows are combinations of the cone's two rows on the path:
+    more than two of them made Sigma singular and every such M-step went to the whole QP. Written on a
+    basis of independent rows, the condensed QP solves them: its answer meets the constraints and
+    costs no more than the whole QP's (solved by ADMM to 1e-5: it may cost a little more)."""
+    answers: list[bool] = []
+    real = CondensedQP.solve
+
+    def spy(self: CondensedQP, *args: object, **kwargs: object) -> object:
+        out = real(self, *args, **kwargs)  # type: ignore[arg-type]
+        answers.append(out is not None)
+        return out
+
+    monkeypatch.setattr(CondensedQP, "solve", spy)
+    scenario_a = po.paper_scenario("A", seed=1, horizon=200)
+    data = weights(scenario_a, 3)
+    free = po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "banded")
+    cons = constraint_sets(scenario_a, free)[case]
+    ctx = po.constraints.ConstraintContext(scenario_a, free)
+    step = MStepData(data.W, data.WZ, data.r, ctx, tuple(range(len(cons))))
+    a = make_mstep(scenario_a, "osqp", constraints=tuple(cons)).solve(step)
+    assert answers and all(answers)
+    whole = {"condense": False, "working_set": False, "mstep_work_limit": None}
+    b = make_mstep(scenario_a, "osqp", whole, constraints=tuple(cons)).solve(step)
+    for con in cons:
+        assert con.violation(a.states, ctx).max_violation <= tolerance("osqp", con, scenario_a)
+    ca, cb = cost(scenario_a, a.states, data), cost(scenario_a, b.states, data)
+    assert ca <= cb + 1e-6 * abs(cb)
+    assert ca >= cost(scenario_a, free, data) - 1e-9 * abs(ca)
+
+
+def test_an_osqp_plan_under_a_speed_limit_solves() -> None:
+    """Scenario C with SpeedLimit(0.1): OSQP's whole QP (ADMM to 1e-5, its polish failing) used to
+    return an answer 4e-6 (relative) below the unconstrained optimum, refused by the answer check; the
+    condensed QP is exact where it binds."""
+    sc = po.paper_scenario("C", seed=0)
+    cons = [po.SpeedLimit(0.1)]
+    res = po.plan_pmht(sc, po.PMHTConfig(solver="osqp", constraints=cons, threads=1))
+    assert res.max_violation <= tolerance("osqp", cons[0], sc)
+    assert res.history.mstep_status[-1] is Status.OPTIMAL
+
+
+def test_row_basis_keeps_two_rows_of_each_polygon() -> None:
+    """The rows of an inner polygon are combinations of its cone's two rows: a basis of two per
+    polygon, which gives back every row; rows that share no column stay independent."""
+    import scipy.sparse as sp
+
+    from pmht_opt.constraints.blocks import disc_block, inner_polygon
+    from pmht_opt.mstep.basis import row_basis
+
+    T = 6
+    cones = disc_block(0, T, np.array([2, 3, 5]), (0, 3), np.ones((3, 2)), np.full(3, 0.1), sides=16)
+    poly = inner_polygon(cones).G.tocsr()
+    rows = sp.vstack([poly, sp.csr_matrix(([1.0], ([0], [6 * 3 + 1])), shape=(1, 6 * T))]).tocsr()
+    basis, T_map = row_basis(rows)
+    assert basis.size == 3 * 2 + 1 and T_map is not None
+    np.testing.assert_allclose(T_map @ rows[basis].toarray(), rows.toarray(), atol=1e-14)
+    alone, none = row_basis(rows[basis])
+    assert none is None and alone.size == basis.size

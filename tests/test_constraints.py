@@ -413,6 +413,29 @@ def test_inner_polygon_of_a_cone_block_is_inscribed() -> None:
     assert np.max(poly.residual(z)) < 1e-12 and blk.residual(z)[0] < 1e-12
 
 
+@pytest.mark.parametrize("radius", [1e-9, 1e-5, 0.1, 3.0])
+def test_a_hard_polygon_is_backed_off_as_its_cone(radius: float) -> None:
+    """Inner polygons (OSQP's cones) are shrunk by the cone's relative back-off, and carry the cone's
+    radius for whoever measures their rows relative to it: an acceleration limit of 1e-5 or 1e-9 keeps
+    a polygon around its centre (backed off like other linear rows, by 1e-5 absolute, it was empty)."""
+    from pmht_opt.constraints.blocks import disc_block, inner_polygon
+    from pmht_opt.mstep.rows import BACKOFF, Imposed, assemble
+
+    T = 3
+    centre = np.array([[1.0, 2.0]])
+    cone = disc_block(0, T, np.array([2]), (0, 3), centre, np.array([radius]), sides=8)
+    rows = assemble([Imposed(inner_polygon(cone), "limit")], 6 * T, np.arange(6 * T))
+    z = np.zeros(6 * T)
+    z[6], z[9] = centre[0]
+    # At the centre: cos(pi / 8) of the radius, less the cut (up to the rounding of coordinates of
+    # size 2), on rows whose coefficients are the faces' unit normals.
+    slack = rows.b - rows.A @ z
+    rounding = 64 * np.finfo(float).eps * 2.0
+    np.testing.assert_allclose(slack, np.cos(np.pi / 8) * radius * (1.0 - BACKOFF), rtol=1e-12, atol=rounding)
+    np.testing.assert_allclose(np.sqrt(rows.A.multiply(rows.A).sum(axis=1)).A1, 1.0, rtol=1e-12)
+    np.testing.assert_array_equal(rows.row_size, radius)
+
+
 def test_span_pattern_keeps_one_sparsity_for_moving_rows() -> None:
     from pmht_opt.constraints.blocks import disc_block, with_span_pattern
 

@@ -72,6 +72,37 @@ def test_an_idle_platform_takes_the_exact_coasting_path(backend: str) -> None:
     assert float(np.max(np.abs(states[:, :, [0, 3]] - exact[:, :, [0, 3]]))) <= TOL
 
 
+#: Small plans OSQP used to give up on ("solved inaccurate") although nothing in them is hard: one
+#: locale, two locales over three steps, a start far outside the area, coordinates of a few tenths.
+TRIVIAL = {
+    "one-locale-T30": {"locales": [[1.0, 2.0]], "starts": [[0.0, 0.0]], "horizon": 30},
+    "two-locales-T3": {"locales": [[1.0, 2.0], [3.0, 1.0]], "starts": [[0.0, 0.0]], "horizon": 3},
+    "far-start": {
+        "locales": [[1.0, 2.0], [5.0, 5.0], [8.0, 3.0]],
+        "starts": [[-1000.0, -1000.0]],
+        "horizon": 30,
+        "bounds": (0.0, 10.0, 0.0, 10.0),
+    },
+    "small-coordinates": {"locales": [[0.163, 0.071]], "starts": [[0.152, 1.404]], "horizon": 60},
+    "two-platforms-T15": {
+        "locales": [[0.394, 0.729]],
+        "starts": [[4.631, 3.362], [-1.4, -3.321]],
+        "horizon": 15,
+    },
+}
+
+
+@pytest.mark.parametrize("name", list(TRIVIAL))
+def test_osqp_plans_small_scenarios_as_the_exact_smoother_does(name: str) -> None:
+    # OSQP's answer (ADMM, then polishing: the KKT system solved and refined) within 1e-9 of the
+    # positions' scale of the exact smoother's plan, every M-step of the default annealed run.
+    sc = po.Scenario(**TRIVIAL[name])  # type: ignore[arg-type]
+    exact = _exact_plan(sc)
+    res = po.plan_pmht(sc, po.PMHTConfig(solver="osqp"))
+    scale = max(1.0, float(np.max(np.abs(exact.positions))))
+    assert np.max(np.abs(res.positions - exact.positions)) <= 1e-9 * scale
+
+
 @pytest.mark.parametrize("name", ["anneal-first-A", "paper30-B", "gated-C"])
 def test_cvxpy_with_its_default_solver_equals_the_exact_smoother(name: str) -> None:
     sc, W, WZ, r = _fixture(name)

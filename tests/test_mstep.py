@@ -118,13 +118,22 @@ def test_the_platforms_of_a_constrained_osqp_mstep_share_its_work_budget(scenari
     free = po.solve_mstep(scenario_a, data.W, data.WZ, data.r)
     vmax = 0.5 * float(np.max(np.hypot(free[:, 1:, 1], free[:, 1:, 4])))
     limit = [po.SpeedLimit(vmax)]
-    # Without a budget it solves; a budget of a few iterations fails the M-step and names the platform.
+    # Without a budget it solves; a budget of a few iterations fails the M-step and names the platform
+    # (the whole QP's solves: without condensing or a working set first).
+    whole = {"condense": False, "working_set": False}
     solved = po.solve_mstep(
-        scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": None}
+        scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={**whole, "mstep_work_limit": None}
     )
     assert np.max(np.hypot(solved[:, 1:, 1], solved[:, 1:, 4])) <= vmax * (1 + 1e-3)
     with pytest.raises(po.SolverError, match=r"\(platform \d\).*can all be met.*'mstep_work_limit': None"):
-        po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": 1e6})
+        po.solve_mstep(
+            scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={**whole, "mstep_work_limit": 1e6}
+        )
+    # With the default budget, condensing and the working set first: an optimum at least as good (the
+    # whole QP's ADMM stops 1e-5 from its optimum; positions along a binding limit are that flat).
+    default = po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "osqp", limit)
+    costs = [mstep_objective(scenario_a.model, s, data.W, data.WZ, data.r) for s in (default, solved)]
+    assert costs[0] <= costs[1] + 1e-6 * abs(costs[1])
     with pytest.raises(po.ConfigError, match="mstep_work_limit"):
         po.solve_mstep(scenario_a, data.W, data.WZ, data.r, "osqp", limit, settings={"mstep_work_limit": -1})
 
@@ -144,8 +153,9 @@ def test_inaccurate_solutions_are_refused_unless_accepted(scenario_a: po.Scenari
 
 def test_fallback_settings_give_way_to_the_callers(scenario_a: po.Scenario) -> None:
     assert make_mstep(scenario_a, "osqp").blocks[0].retries == RETRIES["osqp"]
-    # A caller who picks rho has chosen what the fallbacks would change: none is tried.
-    assert make_mstep(scenario_a, "osqp", {"rho": 5.0}).blocks[0].retries.sets == ()
+    # A caller who picks the polishing's refinement has chosen what the fallback would change: none
+    # is tried.
+    assert make_mstep(scenario_a, "osqp", {"polish_refine_iter": 5}).blocks[0].retries.sets == ()
     only = make_mstep(scenario_a, "clarabel", {"max_iter": 50}).blocks[0].retries
     assert only == RETRIES["clarabel"]
 
@@ -153,7 +163,7 @@ def test_fallback_settings_give_way_to_the_callers(scenario_a: po.Scenario) -> N
 @pytest.mark.parametrize(
     ("backend", "fast", "chain"),
     [
-        ("osqp", {"max_iter": 20}, ({"max_iter": 30}, {"max_iter": 50_000})),
+        ("osqp", {"max_iter": 5}, ({"max_iter": 6}, {"max_iter": 50_000})),
         ("clarabel", {"max_iter": 0}, ({"max_iter": 0, "equilibrate_enable": True}, {"max_iter": 200})),
     ],
 )

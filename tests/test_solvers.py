@@ -373,6 +373,30 @@ def test_osqp_work_limit_must_be_a_positive_finite_number(limit: object) -> None
         solvers.open_session(box_smoothing_problem(), "osqp", work_limit=limit)
 
 
+def test_osqp_polish_tolerance_makes_an_accurate_polish_part_of_solved() -> None:
+    prob = box_smoothing_problem()
+    exact = solvers.open_session(prob, "osqp", polishing=False, **EXACT_ITERATIONS).solve()
+    loose = {"eps_abs": 1e-3, "eps_rel": 1e-3, "polish_tolerance": 1e-10}
+    # ADMM's iterate at 1e-3 is solved by OSQP's own test, not by the tolerance.
+    session = solvers.open_session(prob, "osqp", polishing=False, **loose)
+    admm = session.solve()
+    assert admm.status is Status.OPTIMAL_INACCURATE and admm.raw_status == "solved, not polished"
+    assert not admm.ok and admm.usable(accept_inaccurate=True)
+    # Polished (the active set found, the reduced KKT system refined) it is exact, and solved.
+    polished = session.resume(polishing=True)
+    assert polished is not None and polished.ok and polished.raw_status == "solved"
+    np.testing.assert_allclose(polished.x, exact.x, atol=1e-8)
+    # Without the tolerance, OSQP's own verdict stands.
+    lifted = session.resume(polishing=False, polish_tolerance=None)
+    assert lifted is not None and lifted.ok
+
+
+@pytest.mark.parametrize("tol", [0, -1.0, float("nan"), True, "1e-9"])
+def test_osqp_polish_tolerance_must_be_a_positive_finite_number(tol: object) -> None:
+    with pytest.raises(solvers.SettingsError, match="polish_tolerance"):
+        solvers.open_session(box_smoothing_problem(), "osqp", polish_tolerance=tol)
+
+
 def test_a_work_budget_is_shared_by_the_sessions_that_hold_it() -> None:
     prob = box_smoothing_problem()
     first = solvers.open_session(prob, "osqp", polishing=False, **EXACT_ITERATIONS)

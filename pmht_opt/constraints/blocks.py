@@ -56,6 +56,10 @@ class Block:
     group
         Consecutive units that stand for one constraint and share one slack in soft mode (the ``S``
         rows of an inner polygon stand for one cone); 1 otherwise.
+    radius
+        For the rows of an inner polygon (:func:`inner_polygon`): per row, the radius ``h_0`` of the
+        cone it stands for, so that the M-step can scale and tighten the rows as it would the cone;
+        ``None`` for any other block.
     """
 
     platform: int
@@ -68,6 +72,7 @@ class Block:
     sides: int = DEFAULT_SIDES
     span: np.ndarray | None = None
     group: int = 1
+    radius: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in BLOCK_KINDS:
@@ -83,6 +88,10 @@ class Block:
             raise ValueError(f"Block has {self.units} units but {self.times.shape[0]} times.")
         if self.units % self.group:
             raise ValueError(f"Block has {self.units} units, not a multiple of its group {self.group}.")
+        if self.radius is not None:
+            self.radius = np.asarray(self.radius, dtype=float).reshape(-1)
+            if self.kind != "nonneg" or self.radius.shape[0] != self.units:
+                raise ValueError("Only the rows of an inner polygon have a radius, one per row.")
 
     @property
     def units(self) -> int:
@@ -182,6 +191,7 @@ def inner_polygon(block: Block) -> Block:
         sides=sides,
         span=span,
         group=sides,
+        radius=np.repeat(h[:, 0], sides),
     )
 
 

@@ -49,18 +49,20 @@ M-steps to the full QP without an attempt.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import solve_triangular
 
 import solvers
 from pmht_opt.model import STATE_DIM, MotionModel
+from pmht_opt.mstep.basis import PIVOT, factor_sigma, row_basis
 from pmht_opt.mstep.formulation import BLOCK, QPLayout
+from pmht_opt.mstep.responses import Responses
 from pmht_opt.mstep.rows import ExtraRows
 from pmht_opt.mstep.units import CondensedRows
-from solvers.banded import BandedFactor, BandedSmoother
+from solvers.banded import BandedSmoother
 
 #: A unit outside the working set counts as met when its violation (``-s`` of a linear row,
 #: ``||s_1..|| - s_0`` of a cone, in the rows' own scale: cones have radius 1, linear rows unit
@@ -81,95 +83,36 @@ MAX_ROUNDS = 16
 #: its rows, and past about this many (a limit binding over long stretches) the sparse full QP is
 #: cheaper, so it is solved instead.
 MAX_ROWS = 160
+#: Most rows on the states in the working set before they are reduced to independent ones
+#: (:func:`~pmht_opt.mstep.basis.row_basis`): the rows of a polygon standing for one cone add one
+#: variable per direction of the plane, not one per row.
+MAX_DEPENDENT_ROWS = 16 * MAX_ROWS
+#: Most independent rows of a working set reduced from dependent ones. Dependent rows are the
+#: polygons of a backend without cones (OSQP), whose whole QP with polygons costs far more than an
+#: interior point's with cones, so the small QP stays the cheaper one up to more rows (B with
+#: ``VisitAll(0.05)``: 190 of 190 M-steps condensed at 400, one given up at 160, after which the
+#: whole QP failed).
+MAX_BASIS = 400
+#: Most solves of a working set again, with the small QP's right-hand side corrected by what its
+#: rows' slacks on the path differ from its own.
+REFINE = 2
+#: The work (iterations times size, :class:`solvers.WorkBudget`) the small QPs of one condensed
+#: attempt may spend together, on backends that count it (OSQP): twice a whole M-step's
+#: (:data:`pmht_opt.mstep.tuning.MSTEP_WORK`), apart from it. The first imposition of guaranteed
+#: visits in polygons makes a small QP of 140 variables and 789 dense rows that needed more than 2e9
+#: (plan_smoothed of C seed 1000, radius 0.1: that M-step then took 14 s through the whole QP, 5 s
+#: condensed). A small QP of a limit binding over long stretches can use it up without settling;
+#: charged to the M-step's budget it left none for the whole QP (B at T = 150 with a soft
+#: SpeedLimit(0.06)).
+ATTEMPT_WORK = 4e9
+#: An attempt that spends more work than this (OSQP: about 0.5 s of ADMM on small dense QPs) marks its
+#: rows as costly to condense: a limit binding over long stretches (A with SpeedLimit(0.05): 145 small
+#: QPs in 25 M-steps, 55 s, against 1.1 s for the working sets of the whole QP), so the next M-step
+#: tries a working set first and condenses only if that does not settle (guaranteed visits, where
+#: the working set's ADMM does not).
+COSTLY_WORK = 2e8
 #: Most M-steps left to the full QP after condensed solves that did not succeed.
 SKIP_MAX = 15
-
-
-class _Responses:
-    """The responses ``H^-1 c`` of rows ``c`` of ``C`` to the factorised ``H``, solved as rows join the
-    working set, and the path's response to ``C_S' w``.
-
-    ``H`` is the same for both axes and does not couple them, so a row's response is that of its x
-    part on the x axis plus that of its y part on the y axis, and parts that are multiples of one
-    pattern (a visit's x and y rows, a speed cone's two components, the two walls of a bound) share
-    one solve of the one-axis system.
-    """
-
-    def __init__(self, C: sp.csr_matrix, factor: BandedFactor, T: int) -> None:
-        self.C, self.factor, self.T = C, factor, T
-        #: Per-axis responses ``(3 T, columns)``, and the column of each pattern.
-        self.R = np.zeros((3 * T, 0))
-        self._pattern: dict[bytes, int] = {}
-        #: Per row: ``(axis, column, scale)`` of each part.
-        self._parts: dict[int, list[tuple[int, int, float]]] = {}
-
-    def _add(self, new: list[int]) -> None:
-        """Solve for the patterns of rows ``new`` not seen yet (without iterative refinement: the
-        responses only form the small QP's matrix ``Sigma``, whose rounding moves the optimum ``w``
-        by as little; the path itself is solved refined, :meth:`apply`)."""
-        parts: dict[int, list[tuple[int, int, float]]] = {i: [] for i in new}
-        sub = self.C[new]
-        if sub.nnz == 0:  # nothing new, or rows without entries: no response to solve
-            self._parts.update(parts)
-            return
-        # Every row's parts: its entries on one axis, in the matrix's order, as (row, axis) segments.
-        cols, vals = sub.indices, sub.data
-        segment = np.repeat(2 * np.arange(len(new)), np.diff(sub.indptr)) + (cols % STATE_DIM) // 3
-        order = np.argsort(segment, kind="stable")
-        cols, vals, segment = cols[order], vals[order], segment[order]
-        starts = np.flatnonzero(np.concatenate(([True], segment[1:] != segment[:-1])))
-        ends = np.append(starts[1:], segment.size)
-        scale = vals[starts]
-        idx = 3 * (cols // STATE_DIM) + cols % 3  # in the one-axis stacked states
-        shape = vals / np.repeat(scale, ends - starts)
-        forces: list[tuple[np.ndarray, np.ndarray]] = []
-        spans = zip(starts.tolist(), ends.tolist(), segment[starts].tolist(), scale.tolist(), strict=True)
-        for a, b, seg, sc in spans:
-            key = idx[a:b].tobytes() + shape[a:b].tobytes()
-            column = self._pattern.get(key)
-            if column is None:
-                column = self._pattern[key] = self.R.shape[1] + len(forces)
-                forces.append((idx[a:b], shape[a:b]))
-            parts[new[seg // 2]].append((seg % 2, column, sc))
-        self._parts.update(parts)
-        if forces:
-            force = np.zeros((3 * self.T, len(forces)))
-            rows = np.concatenate([f[0] for f in forces])
-            which = np.repeat(np.arange(len(forces)), [f[0].size for f in forces])
-            force[rows, which] = np.concatenate([f[1] for f in forces])
-            st, _ = self.factor.solve(force.reshape(1, self.T, 3, len(forces)), refine=0)
-            self.R = np.concatenate([self.R, st[0].reshape(3 * self.T, len(forces))], axis=1)
-
-    def sigma(self, state_rows: np.ndarray) -> np.ndarray:
-        """``Sigma = C_S H^-1 C_S'`` of ``state_rows``, symmetrised."""
-        rows = state_rows.tolist()
-        self._add([i for i in rows if i not in self._parts])
-        k = len(rows)
-        resp = np.zeros((2, 3 * self.T, k))
-        parts = [(axis, j, col, scale) for j, i in enumerate(rows) for axis, col, scale in self._parts[i]]
-        if parts:
-            axes, js, columns, scales = (np.array(v) for v in zip(*parts, strict=True))
-            resp[axes, :, js] = (self.R[:, columns] * scales).T
-        sub = self.C[state_rows].tocoo()
-        axis = (sub.col % STATE_DIM) // 3
-        idx = 3 * (sub.col // STATE_DIM) + sub.col % 3
-        sigma = np.zeros((k, k))
-        for a in (0, 1):
-            on = axis == a
-            part = sp.csr_matrix((sub.data[on], (sub.row[on], idx[on])), shape=(k, 3 * self.T))
-            sigma += part @ resp[a]
-        return 0.5 * (sigma + sigma.T)
-
-    def apply(self, state_rows: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The states and whitened noise, both ``(6 T,)``, of ``H^-1 C_S' w``: one refined solve."""
-        if state_rows.size == 0:
-            zero = np.zeros(STATE_DIM * self.T)
-            return zero, zero.copy()
-        push = (self.C[state_rows].T @ w).reshape(self.T, 2, 3)
-        st, nz = self.factor.solve(np.moveaxis(push, 1, -1)[None])
-        return _stack(st[0]).ravel(), _stack(nz[0]).ravel()
-
-
 class CondensedQP:
     """The condensed constrained M-step of one platform over one horizon (module docstring).
 
@@ -177,16 +120,27 @@ class CondensedQP:
     ----------
     model, layout
         The motion model and the layout of the platform's constrained QP.
+    retries
+        Settings tried in turn after a small QP's solve failed.
     """
 
-    def __init__(self, model: MotionModel, layout: QPLayout) -> None:
+    def __init__(
+        self, model: MotionModel, layout: QPLayout, retries: solvers.RetryChain = solvers.NO_RETRY
+    ) -> None:
         self.layout = layout
+        #: Settings tried in turn after a small QP's solve failed (continued from its iterate).
+        self.retries = retries
         self.T = layout.T
         self.smoother = BandedSmoother(model.F3, model.Q3, np.array([1.0, 0.0, 0.0]), self.T, 1)
         self._rows: CondensedRows | None = None
         self._extra: ExtraRows | None = None
         #: The units that bound the last answer to the current rows.
         self._bound = np.zeros(0, dtype=int)
+        #: The work budget of the current attempt (shared by its small QPs' solves).
+        self._budget: solvers.WorkBudget | None = None
+        #: Whether the last attempt spent more than :data:`COSTLY_WORK`: the caller then tries a
+        #: working set of the whole QP's rows first (:mod:`pmht_opt.mstep.working`).
+        self.costly = False
         #: Condensed solves given up in a row, and solves still to leave to the full QP.
         self._failures = 0
         self._skip = 0
@@ -201,7 +155,9 @@ class CondensedQP:
         exact: tuple[np.ndarray, np.ndarray],
     ) -> solvers.QPSolution | None:
         """The M-step's solution vector in the full QP's layout, or ``None`` if the condensed solve did
-        not succeed (the caller then solves the full QP).
+        not succeed (the caller then solves the full QP). The small QPs of one call share a work budget
+        of :data:`ATTEMPT_WORK` (:class:`solvers.WorkBudget`, counted by first-order backends), apart
+        from the M-step's: an attempt that does not settle leaves the whole QP the work it had.
 
         ``exact`` is the unconstrained optimum's states and whitened noise, both ``(T, 6)`` (the exact
         smoother's, which the M-step has computed for its check and screening anyway).
@@ -210,9 +166,11 @@ class CondensedQP:
         if self._skip:
             self._skip -= 1
             return None
-        if rows.has_state[rows.units.rows(self._bound)].sum() > MAX_ROWS:
+        if rows.has_state[rows.units.rows(self._bound)].sum() > MAX_DEPENDENT_ROWS:
             return None  # the last answer was bound by more rows than a condensed QP should take
+        self._budget = solvers.WorkBudget(ATTEMPT_WORK)
         answer = self._solve(rows, W, r, session_class, options, exact)
+        self.costly = self._budget.spent > COSTLY_WORK
         # After failures in a row, wait 1, 3, 7, ... M-steps (at most SKIP_MAX) before trying again:
         # rows that defeat condensing (long stretches of rows at neighbouring steps, whose Sigma is
         # singular to working precision) tend to stay, and each attempt costs more than its full QP.
@@ -240,24 +198,33 @@ class CondensedQP:
         # every unit the unconstrained optimum violates.
         first = _worst(margin, self._bound, WORST if self._bound.size else 0.0, rows.size)
         units = np.union1d(np.union1d(rows.always, first), self._bound)
-        responses = _Responses(rows.C, factor, self.T)
-        iterations = 0
+        responses = Responses(rows.C, factor, self.T)
+        iterations = refined = 0
+        # What the rows' slacks on the path differ from the small QP's by, added to its right-hand side.
+        shift = np.zeros(rows.b.size)
         for _ in range(MAX_ROUNDS):
             try:
-                answer = self._round(rows, units, responses, session_class, options, X0)
+                answer = self._round(rows, units, responses, session_class, options, X0, shift)
                 if answer is None:
                     return None
-                sol, w, state_rows, slack = answer
+                sol, w, state_rows, slack, picked, predicted = answer
                 dX, dU = responses.apply(state_rows, w)
             except solvers.QPError:
                 return None
             X, U = X0 + dX, U0 + dU
             iterations += sol.iterations
-            margin = rows.units.margin(rows.b - rows.C @ X - rows.E @ slack)
+            s_path = rows.b - rows.C @ X - rows.E @ slack
+            margin = rows.units.margin(s_path)
             if _missed_in(margin[units], rows.units.kind[units], rows.size[units]):
-                # A row of the working set is missed on the path itself (the small QP's Sigma is
-                # formed without refinement): not exact, the full QP decides.
-                return None
+                # A row of the working set is missed on the path itself: the small QP's Sigma is
+                # formed without refinement. Solved again with the difference moved into its
+                # right-hand side (iterative refinement, the path's slacks as the residual), at most
+                # REFINE times; then the full QP decides.
+                if refined == REFINE:
+                    return None
+                refined += 1
+                shift[picked] += s_path[picked] - predicted
+                continue
             missed = _worst(margin, units, 0.0, rows.size)
             if missed.size == 0:
                 self._bound = units[(margin[units] < BOUND) & rows.on_state[units]]
@@ -296,13 +263,15 @@ class CondensedQP:
         self,
         rows: CondensedRows,
         units: np.ndarray,
-        responses: _Responses,
+        responses: Responses,
         session_class: type[solvers.QPSession],
         options: dict[str, Any],
         X0: np.ndarray,
-    ) -> tuple[solvers.QPSolution, np.ndarray, np.ndarray, np.ndarray] | None:
-        """Solve the small QP of the rows of ``units``: the backend's solution, ``w`` and the rows it
-        belongs to, and the full slack vector; ``None`` if the backend did not solve it."""
+        shift: np.ndarray,
+    ) -> tuple[solvers.QPSolution, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """Solve the small QP of the rows of ``units`` (their right-hand sides moved by ``shift``): the
+        backend's solution, ``w`` and the rows it belongs to, the full slack vector, the rows of the
+        small QP and their slacks in it; ``None`` if the backend did not solve it."""
         E = rows.E
         picked = rows.units.rows(units)
         E_picked = E[picked]
@@ -316,44 +285,59 @@ class CondensedQP:
         on_state = rows.has_state[picked]
         state_rows = picked[on_state]
         k, p = state_rows.size, slacks.size
-        if k > MAX_ROWS:
+        if k > MAX_DEPENDENT_ROWS:
             return None
         if k + p == 0:  # no row in the working set: the unconstrained optimum, exact
             none = solvers.QPSolution(solvers.Status.OPTIMAL, "banded", "exact", x=np.zeros(0))
-            return none, np.zeros(0), state_rows, np.zeros(E.shape[1])
+            return none, np.zeros(0), state_rows, np.zeros(E.shape[1]), picked, np.zeros(picked.size)
         C_picked = rows.C[picked]
         # The cost 1/2 w' Sigma w written as 1/2 |v|^2 with v = R D^-1 w, R'R = D Sigma D (D the
         # Jacobi scaling): an identity Hessian and triangular rows keep the small QP's KKT system sparse.
-        sigma = responses.sigma(state_rows)
-        diag = np.diag(sigma)
-        d = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), 1.0)
-        try:
-            R = np.linalg.cholesky(d[:, None] * sigma * d[None, :]).T
-        except np.linalg.LinAlgError:  # rows that depend on each other: the full QP takes them
+        # Rows that depend on each other (the rows of a polygon standing for one cone are combinations
+        # of its two rows on the path) make Sigma singular: they are written on a basis of independent
+        # ones, C_S = T C_J, and Sigma_J takes Sigma's place.
+        basis, T = np.arange(k), None
+        if k > MAX_ROWS:  # more rows than a small QP takes, unless they depend on each other
+            basis, T = row_basis(rows.C[state_rows])
+            if basis.size > (MAX_ROWS if T is None else MAX_BASIS):
+                return None
+        sigma = responses.sigma(state_rows[basis])
+        root, d = factor_sigma(sigma)
+        if T is None and (root is None or np.min(np.diag(root[0])) ** 2 <= PIVOT):
+            basis, T = row_basis(rows.C[state_rows])
+            if T is not None:
+                sigma = sigma[np.ix_(basis, basis)]
+            root, d = factor_sigma(sigma, exact=False) if T is not None or root is None else (root, d)
+        if root is None:  # Sigma singular to working precision: the full QP takes the rows
             return None
-        P = sp.diags(np.concatenate([np.ones(k), np.zeros(p)]), format="csc")
-        q = np.zeros(k + p)
+        F, back = root
+        r = F.shape[1]
+        P = sp.diags(np.concatenate([np.ones(r), np.zeros(p)]), format="csc")
+        q = np.zeros(r + p)
         assert self._extra is not None
-        q[k:] = self._extra.slack_cost[slacks]
-        A = np.zeros((picked.size, k + p))
-        A[on_state, :k] = R.T / d[:, None]
-        A[:, k:] = E_picked[:, slacks].toarray()
+        q[r:] = self._extra.slack_cost[slacks]
+        A = np.zeros((picked.size, r + p))
+        A[on_state, :r] = F / d[:, None] if T is None else T @ (F / d[:, None])
+        A[:, r:] = E_picked[:, slacks].toarray()
         problem = solvers.QPProblem(
             P=P,
             q=q,
             A=sp.csc_matrix(A),
-            b=rows.b[picked] - C_picked @ X0,
+            b=rows.b[picked] - C_picked @ X0 + shift[picked],
             cones=tuple(rows.units.cones(units)),
         )
         try:
-            sol = session_class(problem, **options).solve()
+            session = session_class(problem, **options)
+            session.budget = self._budget
+            sol, _ = solvers.retry_failed(session.solve(), options, self.retries, _continued(session))
         except solvers.SettingsError:
             return None
         if not sol.ok or sol.x is None:
             return None
         slack = np.zeros(E.shape[1])
-        slack[slacks] = sol.x[k:]
-        return sol, d * solve_triangular(R, sol.x[:k]), state_rows, slack
+        slack[slacks] = sol.x[r:]
+        predicted = problem.b - problem.A @ sol.x
+        return sol, d * back(sol.x[:r]), state_rows[basis], slack, picked, predicted
 
     def _vector(self, X: np.ndarray, U: np.ndarray, slack: np.ndarray) -> np.ndarray:
         """The full QP's variable vector: per step ``[x_t / units, u_t]``, then the slacks."""
@@ -361,6 +345,22 @@ class CondensedQP:
         body[:, :STATE_DIM] = X.reshape(self.T, STATE_DIM) / self.layout.units
         body[:, STATE_DIM:] = U.reshape(self.T, STATE_DIM)
         return np.concatenate([body.ravel(), slack])
+
+
+def _continued(session: solvers.QPSession) -> Callable[[dict[str, Any]], solvers.QPSolution]:
+    """A retry of ``session``'s solve with other settings: continued from its iterate where the
+    backend can (:meth:`solvers.QPSession.resume`), else a new session."""
+
+    def attempt(settings: dict[str, Any]) -> solvers.QPSolution:
+        changed = {k: v for k, v in settings.items() if session.settings.get(k) != v}
+        resumed = session.resume(**changed)
+        if resumed is not None:
+            return resumed
+        fresh = type(session)(session.problem, **settings)
+        fresh.budget = session.budget
+        return fresh.solve()
+
+    return attempt
 
 
 def _worst(margin: np.ndarray, exclude: np.ndarray, fraction: float, size: np.ndarray) -> np.ndarray:
@@ -383,7 +383,3 @@ def _missed_in(margin: np.ndarray, kind: np.ndarray, size: np.ndarray) -> bool:
     least = np.where(kind == 0, 0.0, MET) + ROUNDING * np.maximum(size, 1.0)
     return bool(np.any(-margin > least))
 
-
-def _stack(per_axis: np.ndarray) -> np.ndarray:
-    """``(T, 3, 2)`` per-axis states as ``(T, 6)`` ``[px, vx, ax, py, vy, ay]``."""
-    return np.concatenate([per_axis[..., 0], per_axis[..., 1]], axis=1)

@@ -22,6 +22,7 @@ from pmht_opt.model import PX, PY, STATE_DIM, MotionModel
 from pmht_opt.mstep.condensed import CondensedQP
 from pmht_opt.mstep.formulation import QPLayout, dynamics_rows, in_increments
 from pmht_opt.mstep.rows import ExtraRows, PlatformRows, assemble
+from pmht_opt.mstep.working import WorkingSetQP
 
 #: A backend session keeps its setup-time scaling while ``r`` stays within this factor of its setup ``r``
 #: (unless it adapts to new numbers itself, :attr:`solvers.QPSession.adapts_to_updates`).
@@ -41,6 +42,11 @@ class Settings:
     #: The settings of condensed constrained solves (``None``: no condensing,
     #: :mod:`pmht_opt.mstep.condensed`).
     condensed: dict[str, Any] | None = None
+    #: The retries of a condensed QP's solve.
+    condensed_retries: solvers.RetryChain = solvers.NO_RETRY
+    #: The settings of constrained solves on a working set of the rows (``None``: the whole QP only,
+    #: :mod:`pmht_opt.mstep.working`).
+    working: dict[str, Any] | None = None
 
     def chain(self, constrained: bool) -> solvers.RetryChain:
         """The retries of a solve with (``True``) or without constraint rows."""
@@ -116,7 +122,15 @@ class HorizonQP:
         self._rows_key: tuple[tuple[int, ...], ...] | None = None
         self._session_key: tuple[tuple[int, ...], ...] | None = None
         #: The condensed solve of constrained M-steps (:mod:`pmht_opt.mstep.condensed`), if used.
-        self.condensed = None if state.condensed is None else CondensedQP(model, self.layout)
+        self.condensed = (
+            None if state.condensed is None else CondensedQP(model, self.layout, state.condensed_retries)
+        )
+        #: The working-set solve of constrained M-steps (:mod:`pmht_opt.mstep.working`), if used.
+        self.working = None if state.working is None else WorkingSetQP(lay.n)
+        #: Whether a working set goes before condensing where condensing proved costly.
+        self._working_first = True
+        #: The rows key and the whole constrained QP's rows ``(A, b, cones)`` of the working-set solve.
+        self._rows_qp: tuple[object, tuple[sp.csc_matrix, np.ndarray, tuple[solvers.Cone, ...]]] | None = None
 
     def layout_for(self, constrained: bool) -> QPLayout:
         """The layout of a QP with or without constraint rows.
@@ -218,14 +232,76 @@ class HorizonQP:
                 )
         if self.extra is not None and self.condensed is not None and exact is not None:
             assert self.state.condensed is not None
+            first = self.condensed.costly and self._working_first
+            if first:  # condensing these rows cost more than a working set may: that first
+                sol = self._solve_working(W, WZ, r, probe, budget, exact)
+                if sol is not None:
+                    return sol
+                self._working_first = False  # it did not settle here (guaranteed visits): not again
             sol = self.condensed.solve(self.extra, W, r, self.session_class, self.state.condensed, exact)
             if sol is not None:
                 return sol
-            full = self._solve_full(W, WZ, r, probe, budget)
+            full = self._solve_rows(W, WZ, r, probe, budget, exact, working=not first)
             if full.ok and full.x is not None:
                 self.condensed.observe(self.extra, self.states(full.x))
             return full
-        return self._solve_full(W, WZ, r, probe, budget)
+        return self._solve_rows(W, WZ, r, probe, budget, exact)
+
+    def _solve_rows(
+        self,
+        W: np.ndarray,
+        WZ: np.ndarray,
+        r: float,
+        probe: Callable[[solvers.QPSolution], None] | None,
+        budget: solvers.WorkBudget | None,
+        exact: tuple[np.ndarray, np.ndarray] | None,
+        working: bool = True,
+    ) -> solvers.QPSolution:
+        """The sparse QP of the current rows: on a working set of them first (if ``working``), where
+        that is used and ``exact`` is given (:mod:`pmht_opt.mstep.working`), else (or if it does not
+        settle) whole."""
+        sol = self._solve_working(W, WZ, r, probe, budget, exact) if working else None
+        return sol if sol is not None else self._solve_full(W, WZ, r, probe, budget)
+
+    def _solve_working(
+        self,
+        W: np.ndarray,
+        WZ: np.ndarray,
+        r: float,
+        probe: Callable[[solvers.QPSolution], None] | None,
+        budget: solvers.WorkBudget | None,
+        exact: tuple[np.ndarray, np.ndarray] | None,
+    ) -> solvers.QPSolution | None:
+        """The QP of the current rows solved on a working set of them, or ``None`` if that is not
+        used here or does not settle (an infeasibility verdict is first put to ``probe``)."""
+        if self.extra is None or self.working is None or exact is None:
+            return None
+        assert self.state.working is not None
+        q = self._cost(W, WZ, r)
+        if self._rows_qp is None or self._rows_qp[0] != self._rows_key:
+            self._rows_qp = (self._rows_key, self._constraints())
+        A, b, cones = self._rows_qp[1]
+        problem = solvers.QPProblem(P=self._P(self.extra.n_slack), q=q, A=A, b=b, cones=cones)
+        sol = self.working.solve(
+            problem,
+            cones[0].dim,
+            self.extra.pattern_key(),
+            self.session_class,
+            self.state.working,
+            self._vector(*exact),
+            budget,
+        )
+        if sol is not None and sol.status in solvers.INFEASIBLE and probe is not None:
+            probe(sol)  # the relaxation's verdict holds for the whole QP: it names the culprits
+            return None
+        return sol
+
+    def _vector(self, states: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """The constrained QP's variable vector of states and whitened noise ``(T, 6)``, no slack."""
+        lay = self.layout
+        body = np.concatenate([states / lay.units, noise], axis=1).ravel()
+        n_slack = 0 if self.extra is None else self.extra.n_slack
+        return np.concatenate([body, np.zeros(n_slack)])
 
     def _solve_full(
         self,

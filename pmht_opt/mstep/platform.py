@@ -58,6 +58,8 @@ class PlatformQP:
         constrained_retries: solvers.RetryChain | None = None,
         margin: float = 0.0,
         condensed_settings: dict[str, Any] | None = None,
+        working_settings: dict[str, Any] | None = None,
+        condensed_retries: solvers.RetryChain = solvers.NO_RETRY,
     ) -> None:
         self.model = model
         #: The least absolute back-off of hard cones (:func:`~pmht_opt.mstep.rows.assemble`).
@@ -70,7 +72,9 @@ class PlatformQP:
             settings if constrained_settings is None else constrained_settings,
             retries,
             constrained_retries,
-            condensed_settings,
+            condensed=condensed_settings,
+            condensed_retries=condensed_retries,
+            working=working_settings,
         )
         self._qps: dict[int, HorizonQP] = {}
 

@@ -32,11 +32,13 @@ from pmht_opt.mstep.platform import PlatformQP
 from pmht_opt.mstep.rows import PlatformRows, RowBuilder
 from pmht_opt.mstep.tuning import (
     CONDENSED,
+    CONDENSED_RETRIES,
     CONSTRAINED_DEFAULTS,
     CONSTRAINED_RETRIES,
     DEFAULTS,
     MSTEP_WORK,
     RETRIES,
+    WORKING_SET,
     cvxpy_defaults,
     cvxpy_retries,
 )
@@ -124,6 +126,11 @@ class QPMStep(MStep):
         self.mstep_work = _work_limit(self.settings.pop("mstep_work_limit", MSTEP_WORK.get(solver)))
         #: Whether constrained M-steps are condensed first (:mod:`pmht_opt.mstep.condensed`).
         self.condense = flag("solver_settings.condense", self.settings.pop("condense", solver in CONDENSED))
+        #: Whether constrained QPs are solved on a working set of their rows first
+        #: (:mod:`pmht_opt.mstep.working`).
+        self.working_set = flag(
+            "solver_settings.working_set", self.settings.pop("working_set", solver in WORKING_SET)
+        )
         #: Whether platforms without constraint rows take the exact smoother's answer (solver "auto").
         self.exact_unconstrained = exact_unconstrained
         try:
@@ -136,6 +143,7 @@ class QPMStep(MStep):
             self.options = {**cvxpy_defaults(self.settings), **self.settings}
             self.constrained_options = dict(self.settings)
             self.condensed_options = dict(self.settings)
+            self.working_options = dict(self.settings)
             retries = cvxpy_retries(self.settings)
             constrained_retries = retries
             threads = 1
@@ -147,11 +155,17 @@ class QPMStep(MStep):
                 **CONDENSED.get(solver, {}),
                 **self.settings,
             }
+            self.working_options = {
+                **CONSTRAINED_DEFAULTS.get(solver, {}),
+                **WORKING_SET.get(solver, {}),
+                **self.settings,
+            }
             retries = RETRIES.get(solver, solvers.NO_RETRY)
             constrained_retries = CONSTRAINED_RETRIES.get(solver, retries)
         # Sets touching a setting the caller chose are skipped: do not second-guess the caller.
         retries = retries.without(self.settings)
         self.constrained_retries = constrained_retries.without(self.settings)
+        self.condensed_retries = CONDENSED_RETRIES.get(solver, solvers.NO_RETRY).without(self.settings)
         self.blocks = [self._platform(m, retries) for m in range(self.M)]
         self.threads = max(1, min(int(threads), self.M))
         self._pool: ThreadPoolExecutor | None = None
@@ -168,6 +182,8 @@ class QPMStep(MStep):
             self.constrained_retries,
             margin=MARGIN_RESOLUTIONS * resolution(self.scenario),
             condensed_settings=self.condensed_options if self.condense else None,
+            working_settings=self.working_options if self.working_set else None,
+            condensed_retries=self.condensed_retries,
         )
 
     def _screen(

@@ -138,6 +138,10 @@ class ExtraRows:
     n_slack: int
     slack_cost: np.ndarray
     slack_owner: list[SlackOwner] = field(default_factory=list)
+    #: Per row, the size of the constraint it belongs to in the rows' own units: the radius of the cone
+    #: an inner polygon's row stands for, 1 for any other row. Dividing by it measures every row
+    #: relative to its constraint (:class:`~pmht_opt.mstep.units.CondensedRows`).
+    row_size: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def pattern_key(self) -> tuple[object, ...]:
         """Everything that fixes the structure (not the numbers) of these rows."""
@@ -161,10 +165,13 @@ class _Rows:
         self.b: list[np.ndarray] = []
         self.cones: list[solvers.Cone] = []
         self.count = 0
+        #: Per row, the size its rows are measured in (a polygon's radius; 1 otherwise).
+        self.sizes: list[np.ndarray] = []
 
-    def block(self, G: sp.coo_matrix, sign: float, h: np.ndarray) -> int:
-        """Rows ``sign * (h - G z)``; returns the first row's index."""
+    def block(self, G: sp.coo_matrix, sign: float, h: np.ndarray, size: np.ndarray | None = None) -> int:
+        """Rows ``sign * (h - G z)`` of sizes ``size`` (default 1); returns the first row's index."""
         start = self.count
+        self.sizes.append(np.ones(G.shape[0]) if size is None else np.where(size > 0, size, 1.0))
         self.rows.append(G.row + start)
         self.cols.append(self.col_map[G.col])
         self.vals.append(sign * G.data)
@@ -183,6 +190,7 @@ class _Rows:
         start = self.count
         self.slack(start + np.arange(slacks.size), slacks)
         self.b.append(np.zeros(slacks.size))
+        self.sizes.append(np.ones(slacks.size))
         self.count += slacks.size
         self.cones.append(solvers.Nonneg(slacks.size))
 
@@ -213,8 +221,10 @@ def assemble(
         blk = item.block
         G, h, unit_scale = _normalised(blk, origin, units)
         k = G.shape[0]
+        size = blk.radius  # an inner polygon's rows: the size of the cone they stand for
         if not item.soft:
-            out.block(G, 1.0, _backed_off(blk, h, margin * unit_scale))
+            least = margin * unit_scale if size is None else margin / np.where(size > 0, size, 1.0)
+            out.block(G, 1.0, _backed_off(blk, h, least), size)
             out.cones.extend(_hard_cones(blk.kind, k, blk.dim))
             continue
         n = blk.units // blk.group
@@ -228,7 +238,7 @@ def assemble(
             )
             for u in firsts.tolist()
         )
-        start = out.block(G, 1.0, h)
+        start = out.block(G, 1.0, h, size)
         if blk.kind == "zero":  # |h - G z| <= s: two inequality rows, s >= 0 implied
             out.block(G, -1.0, h)
             out.slack(start + np.arange(k), np.repeat(sl, blk.group))
@@ -254,7 +264,13 @@ def assemble(
         b = np.zeros(0)
     A.sort_indices()
     return ExtraRows(
-        A=A, b=b, cones=merge_cones(out.cones), n_slack=n_slack, slack_cost=slack_cost, slack_owner=owners
+        A=A,
+        b=b,
+        cones=merge_cones(out.cones),
+        n_slack=n_slack,
+        slack_cost=slack_cost,
+        slack_owner=owners,
+        row_size=np.concatenate(out.sizes) if out.sizes else np.zeros(0),
     )
 
 
@@ -267,15 +283,20 @@ def _normalised(
 
     A cone is unchanged by a positive factor, but a solver's feasibility tolerance is absolute on the
     rows it is given: divided by its radius, a limit of 1e-3 is met to the same relative precision as
-    a limit of 1. Linear rows are left as they are (unit normals and bounds).
+    a limit of 1. Linear rows are left as they are (unit normals and bounds), the rows of an inner
+    polygon too: divided by the radius, OSQP's whole QP under limits of 1e-3 needed several times the
+    ADMM iterations and failed within its budget (B with ``SpeedLimit(1e-3)``, ``AccelLimit(1e-3)``).
+    Each row's radius is kept beside it (:attr:`ExtraRows.row_size`) for the condensed QP, whose
+    tolerances are relative to its rows.
     """
     G = with_span_pattern(blk).tocoo()
     h = blk.h if origin is None else blk.h - G @ origin
     if units is not None:
         G.data = G.data * units[G.col % STATE_DIM]
-    if blk.kind != "soc":
+    if blk.kind == "soc":
+        radius = h[:: blk.dim]
+    else:
         return G, h, np.ones(blk.units)
-    radius = h[:: blk.dim]
     scale = np.where(radius > 0, 1.0 / np.where(radius > 0, radius, 1.0), 1.0)
     per_row = np.repeat(scale, blk.dim)
     G.data = G.data * per_row[G.row]
@@ -305,6 +326,12 @@ def _backed_off(blk: Block, h: np.ndarray, least: np.ndarray | float = 0.0) -> n
         cut = np.minimum(np.maximum(BACKOFF, np.broadcast_to(least, radius.shape)), 0.5)
         radius[radius > 0] -= cut[radius > 0]  # normalised: the radius is 1
         return out
+    if blk.radius is not None:
+        # An inner polygon: the cone's radius (normalised to 1) shrunk as above, which moves each row
+        # by cos(pi / S) times the cut. Backed off like other linear rows, a polygon of a limit below
+        # 1e-5 would be empty.
+        cut = np.minimum(np.maximum(BACKOFF, np.broadcast_to(least, h.shape)), 0.5)
+        return np.where(blk.radius > 0, h - np.cos(np.pi / blk.sides) * cut * blk.radius, h)
     if blk.kind == "nonneg":
         return h - BACKOFF * np.maximum(np.abs(h), 1.0)
     return h

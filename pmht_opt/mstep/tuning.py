@@ -2,12 +2,17 @@
 
 Why each value (figures in docs/decisions.md sections 2 and 3):
 
-* OSQP, unconstrained: residuals of the dynamics integrate into positions over hundreds of steps, so
-  ADMM must run to 1e-9; with ``rho = 1`` it gets there in fewer iterations than with its default, and
-  polishing needs many refinement steps for the same accuracy, which cost more. OSQP equilibrates the
-  problem again at every update of ``P``, once per EM iteration; four passes of its equilibration
-  (its default is ten) take as many ADMM iterations, to answers within rounding of the solver's
-  tolerance of those with ten, at about half the cost of an update.
+* OSQP, unconstrained: the QP has equality rows only, so OSQP's polishing is the solve of its whole
+  KKT system, refined against the unregularised matrix: exact to rounding, where ADMM alone must run
+  to 1e-9 (residuals of the dynamics integrate into positions over hundreds of steps) and its
+  duality-gap test then stalls small problems at "solved inaccurate" (one locale, 30 steps). So ADMM
+  runs to 1e-4 only (its iterate is a warm start), polishing follows, and the answer counts as solved
+  only if its residuals meet 1e-10 (``polish_tolerance``, :mod:`solvers.osqp_`), which a polish whose
+  refinement has not converged misses by orders of magnitude. The refinement converges in a few steps
+  with ``sigma = 1e-9``; with OSQP's 1e-6 it stalled at 1e-9 on coordinates of a few hundredths.
+  ``rho = 1``; OSQP equilibrates the problem again at every update of ``P``, once per EM iteration,
+  and four passes of its equilibration (its default is ten) cost half as much for the same answers.
+  The retry refines the polish 50 times.
 * OSQP, constrained: at 1e-9 ADMM needs tens of thousands of iterations with inequality rows; at 1e-5
   with polishing it solves limits, bounds, obstacles and terminal conditions. OSQP's duality-gap
   test keeps such solves at "solved inaccurate", so it is off. Polishing recovers the exact answer when
@@ -40,11 +45,19 @@ Why each value (figures in docs/decisions.md sections 2 and 3):
   the small QP has tens of variables, so iterative refinement and tolerances of 1e-10 cost little;
   at Clarabel's defaults a guaranteed-visits M-step's cost ended 1.5e-7 (relative) above the full
   QP's, at 1e-10 within 1e-8 of it.
+* OSQP, constrained M-steps condensed too: its whole QP with polygons fails or takes tens of seconds
+  where a few rows bind (guaranteed visits: 9 of the stress sweep's visit cases failed). The small QP
+  (an identity Hessian, dense rows of a few hundred entries) costs microseconds per ADMM iteration but
+  may need 10000 of them where visits sit at neighbouring steps, so its cap is 100000; ``sigma =
+  1e-9`` lets its polish converge, and the polished answer must meet 1e-9 (``polish_tolerance``),
+  since the path must then meet every row of the working set to 1e-9; a failed polish is retried at
+  1e-9 from its iterate (:data:`CONDENSED_RETRIES`). Where condensing does not settle, the whole QP is
+  first solved on a working set of its rows (:data:`WORKING_SET`): a speed limit of 0.02 on B binds
+  at a few hundred of its 8000 polygon rows.
 * Retries (:class:`solvers.RetryChain`), tried in turn when a solve fails without an infeasibility
   verdict; a set that touches a setting the caller chose is skipped, and the set that solves is kept
   for that platform's later solves. Clarabel: iterative refinement (rescues "insufficient progress"
-  on ill-scaled constrained M-steps). OSQP: a fixed ``rho`` of 100, then 30 (adaptive ``rho`` can
-  stall where a manoeuvre is first forced on the paths).
+  on ill-scaled constrained M-steps). OSQP: a longer refinement of the polish.
 * cvxpy with Clarabel, unconstrained: cvxpy's form keeps the raw penalty weights and its answers are
   less precise than the clarabel backend's; some M-steps end "almost solved" with Clarabel's defaults.
   The retries are a smaller static regularisation, then no equilibration (the smaller regularisation
@@ -61,6 +74,7 @@ from solvers import RetryChain
 #: (:mod:`pmht_opt.mstep.condensed`), with the options of the small condensed QP (over the constrained
 #: ones; the caller's settings override both). ``solver_settings={"condense": False}`` turns it off.
 CONDENSED: dict[str, dict[str, Any]] = {
+    "osqp": {"max_iter": 100_000, "polish_tolerance": 1e-9, "sigma": 1e-9},
     "clarabel": {
         "iterative_refinement_enable": True,
         "tol_gap_abs": 1e-10,
@@ -69,13 +83,26 @@ CONDENSED: dict[str, dict[str, Any]] = {
     },
 }
 
+#: Backends whose constrained M-steps are solved on a working set of their rows before the whole QP
+#: (:mod:`pmht_opt.mstep.working`), with the options of those solves (over the constrained ones; the
+#: caller's settings override both). ``solver_settings={"working_set": False}`` turns it off.
+WORKING_SET: dict[str, dict[str, Any]] = {"osqp": {}}
+
+#: Settings tried in turn after a condensed QP's solve failed without an infeasibility verdict (backends
+#: not listed: none), continuing from the failed iterate where the backend can.
+CONDENSED_RETRIES: dict[str, RetryChain] = {"osqp": RetryChain(({"eps_abs": 1e-9, "eps_rel": 1e-9},))}
+
 #: Options of the unconstrained M-step QP per backend (the caller's settings override them).
 DEFAULTS: dict[str, dict[str, Any]] = {
     "osqp": {
-        "eps_abs": 1e-9,
-        "eps_rel": 1e-9,
+        "eps_abs": 1e-4,
+        "eps_rel": 1e-4,
         "rho": 1.0,
-        "polishing": False,
+        "polishing": True,
+        "polish_refine_iter": 10,
+        "polish_tolerance": 1e-10,
+        "sigma": 1e-9,
+        "check_dualgap": False,
         "check_termination": 10,
         "scaling": 4,
     },
@@ -112,7 +139,7 @@ RETRIES: dict[str, RetryChain] = {
             {"max_step_fraction": 0.9},
         )
     ),
-    "osqp": RetryChain(({"rho": 100.0, "adaptive_rho": False}, {"rho": 30.0, "adaptive_rho": False})),
+    "osqp": RetryChain(({"polish_refine_iter": 50},)),
 }
 
 #: Settings tried in turn after a failed solve with constraint rows (backends not listed: :data:`RETRIES`).

@@ -83,7 +83,10 @@ class CondensedRows:
 
     def __init__(self, extra: ExtraRows, layout: QPLayout) -> None:
         n = layout.n
-        A = extra.A.tocsr()
+        # Every row measured relative to its constraint (an inner polygon's by the radius of its
+        # cone), as the tolerances of the small QP and of the working set's checks are.
+        per_row = extra.row_size if extra.row_size.size == extra.A.shape[0] else np.ones(extra.A.shape[0])
+        A = (sp.diags(1.0 / per_row) @ extra.A).tocsr()
         coo = A[:, :n].tocoo()
         step, comp = np.divmod(coo.col, BLOCK)
         if np.any(comp >= STATE_DIM):  # pragma: no cover - rows are written on the states only
@@ -96,7 +99,7 @@ class CondensedRows:
         # Stored zeros (a sparsity pattern kept for the full QP's sessions) carry no number here.
         self.C.eliminate_zeros()
         self.E.eliminate_zeros()
-        self.b = extra.b
+        self.b = extra.b / per_row
         self.units = Units.of(extra.cones)
         self.has_state = np.diff(self.C.indptr) > 0
         # Units whose rows touch only slacks (``s >= 0``), by their slack column.
