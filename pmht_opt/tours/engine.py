@@ -24,15 +24,17 @@ a target that no route can reach within its cap is refused first (InfeasibleErro
 orders the centres with each vehicle's cap as its maximum route distance; every score puts the routes'
 excess over their caps before the objective, so the cone program, the moves and the ruins never take
 a route over its cap, and a tour over them is pulled back first; record-to-record travel walks only
-through tours with no more excess than the best. (Letting the walk cross tours over a cap, priced
-:math:`J + w E` with :math:`w = 1`, gave the same answers on the nine fleet scenarios measured:
-after a repair that prefers places within the caps and a descent that lowers the excess first, a
-candidate is almost never over a cap. Counting each arc shorter by its discs' radii in PyVRP's caps,
-so that its order is not held to the longer centres' routes, made the totals no better: 4.03% (worst 10.6%)
-and 4.79% (16.8%) over the uncapped answer for half and full radii, against 3.96% (8.7%).) A search that ends over a cap
-raises SolverError: the caps were not met, which proves nothing. Without caps (or all ``inf``) the
-excess is 0 everywhere and every choice, hence the answer, is the same to the bit as without the
-feature.
+through tours with no more excess than the best. A search that ends over a cap raises SolverError:
+the caps were not met, which proves nothing. Without caps (or all ``inf``) the excess is 0 everywhere
+and every choice, hence the answer, is the same to the bit as without the feature.
+
+Two alternatives were measured on the nine closed fleet scenarios (A, B, C, seeds 0-2, radius 0.3,
+caps at 0.8 of the uncapped longest route) and dropped. Letting the walk cross tours over a cap,
+priced :math:`J + w E` with :math:`w = 1`, gave the same answers: after a repair that prefers places
+within the caps and a descent that lowers the excess first, a candidate is almost never over a cap.
+Counting each arc in PyVRP's caps shorter by half or all of its discs' radii (the routes through the
+discs are shorter than through the centres) made the totals no better: 4.03% (worst 10.6%) and 4.79%
+(16.8%) over the uncapped answer, against 3.96% (8.7%) with the centres' lengths.
 
 A generalised TSP over discretised discs (PyVRP with one group of boundary points per disc, the
 Carrabs et al. scheme) was tried first and dropped: PyVRP's search on such groups stalled about 10%
