@@ -58,7 +58,10 @@ class CoverageOptions:
         (default) for the scenario's :attr:`~pmht_opt.Scenario.coverage_radius`.
     objective
         ``"distance"`` (default: the shortest routes in total, the paper's metric) or ``"time"``
-        (the earliest finish: the longest route as short as it can be, then the total).
+        (the earliest finish: the longest route as short as it can be, then the total). Either way
+        each route is capped at what its platform can fly in the horizon at its speed limit
+        (:func:`~pmht_opt.planners.routes.tours_within_budgets`): with ``"distance"``, the shortest
+        routes in total that fit the horizon.
     smoothing
         How much the smooth paths round the tour's corners: over ``smoothing`` times the median
         coverage radius (the rule of :mod:`pmht_opt.planners.coverage.flight`). Smaller follows the
