@@ -8,6 +8,7 @@ import pytest
 
 import pmht_opt as po
 from pmht_opt.planners.coverage import missed_locales
+from pmht_opt.planners.routes import route_budgets
 
 
 def small_scenario(kind: str, seed: int = 0, horizon: int = 120) -> po.Scenario:
@@ -217,3 +218,33 @@ def test_a_plan_that_fails_the_check_is_never_returned(monkeypatch: pytest.Monke
     monkeypatch.setattr(fly, "missed_locales", lambda locales, positions, radius: np.array([3]))
     with pytest.raises(po.SolverError, match=r"locales \[3\]"):
         po.plan_coverage(small_scenario("B"), 0.3, po.PMHTConfig(threads=1))
+
+
+#: A short tour search: these tests are about the speed limit's caps, not the search's quality.
+QUICK = {"order_iterations": 300, "iterations": 20, "patience": 10}
+
+
+def test_the_speed_limit_caps_each_route_and_keeps_the_objective() -> None:
+    # Scenario B, seed 0: the shortest routes in total send one platform round every locale (9.95);
+    # at 0.08 a platform can fly 8.89 in the horizon, so the work is shared, the total still shortest.
+    sc = small_scenario("B", seed=0)
+    free = po.plan(sc, "coverage", settings=po.Settings(threads=1), radius=0.3, search=QUICK)
+    limit = [po.SpeedLimit(0.08)]
+    settings = po.Settings(threads=1, constraints=limit)
+    res = po.plan(sc, "coverage", settings=settings, radius=0.3, search=QUICK)
+    budgets = route_budgets(sc, limit)
+    lengths = np.array([np.hypot(*np.diff(line, axis=0).T).sum() for line in res.extras["tour"]])
+    assert res.extras["objective"] == "distance"
+    assert max(np.hypot(*np.diff(line, axis=0).T).sum() for line in free.extras["tour"]) > budgets[0]
+    assert np.all(lengths <= budgets) and lengths.sum() >= free.extras["tour_length"] * (1 - 1e-9)
+    assert_covers(res, 0.3)
+    assert res.max_speed <= 0.08 * (1 + 1e-6)
+
+
+def test_routes_the_search_cannot_fit_in_the_horizon_say_what_to_change() -> None:
+    sc = small_scenario("B", seed=0)
+    settings = po.Settings(threads=1, constraints=[po.SpeedLimit(0.05)])  # every locale within reach
+    with pytest.raises(po.SolverError, match="lengthen the horizon, raise the speed limit or add") as caught:
+        po.plan(sc, "coverage", settings=settings, radius=0.3, search=QUICK)
+    assert not isinstance(caught.value, po.InfeasibleError)
+    assert "does not prove" in str(caught.value)

@@ -10,12 +10,15 @@ from pmht_opt import (
     ConfigError,
     InfeasibleError,
     PMHTConfig,
+    Scenario,
+    Settings,
+    SolverError,
     SpeedLimit,
     order_locales,
     paper_scenario,
     plan_smoothed,
 )
-from pmht_opt.planners.smoothed import sub_batches
+from pmht_opt.planners.smoothed import SmoothedOptions, order_for, sub_batches
 
 ITERATIONS = {"clarabel": 8, "osqp": 4, "cvxpy": 8}
 #: OSQP's first solve with the visit rows takes thousands of ADMM iterations: it plans the same tours
@@ -109,3 +112,17 @@ def test_tour_visits_take_the_first_most_probable_step_of_each_window(
     _, times = visits.visits(ConstraintContext(scenario=sc, states=np.zeros(0), estep=es))
     for n, (m, (lo, hi)) in enumerate(zip(platform, windows, strict=True)):
         assert times[n] == lo + int(np.argmax(es.locale_weights(n)[lo - 1 : hi, m]))
+
+
+def test_the_tours_orderer_caps_routes_at_what_the_horizon_allows() -> None:
+    # Two platforms west of 16 locales: the shortest routes in total use one platform (9.95 long);
+    # at a speed limit of 0.08 each can fly 8.89 in the 120 steps, so both fly, still by distance.
+    rng = np.random.default_rng(0)
+    sc = Scenario(rng.uniform(0, 4, (16, 2)), [[-1.0, 1.0], [-1.0, 3.0]], horizon=120, coverage_radius=0.3)
+    options = SmoothedOptions(order_options={"order_iterations": 300, "iterations": 20})
+    free, _ = order_for(sc, Settings(), options)
+    assert min(len(r) for r in free) == 0
+    capped, objective = order_for(sc, Settings(constraints=[SpeedLimit(0.08)]), options)
+    assert objective == "distance" and min(len(r) for r in capped) > 0
+    with pytest.raises(SolverError, match="lengthen the horizon, raise the speed limit or add platforms"):
+        order_for(sc, Settings(constraints=[SpeedLimit(0.05)]), options)

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pmht_opt.exceptions import ConfigError, SolverError
+from pmht_opt.exceptions import ConfigError, InfeasibleError, SolverError
 from pmht_opt.tours import (
     DiscProblem,
     DiscTours,
@@ -191,3 +191,113 @@ def test_every_vehicle_starts_from_its_own_start() -> None:
     assert tours.total == pytest.approx(2 * 0.8 * 2, rel=1e-7)
     for m in range(2):
         assert np.array_equal(tours.vertices(m)[0], problem.starts[m])
+
+
+# Route length caps (DiscProblem.max_lengths).
+
+
+def _same(a: DiscTours, b: DiscTours) -> bool:
+    return (
+        [r.tolist() for r in a.routes] == [r.tolist() for r in b.routes]
+        and np.array_equal(a.points, b.points)
+        and np.array_equal(a.lengths, b.lengths)
+        and all(np.array_equal(x, y) for x, y in zip(a.turns, b.turns, strict=True))
+        and a.info["history"] == b.info["history"]
+    )
+
+
+@pytest.mark.parametrize(
+    ("seed", "m", "closed", "objective"),
+    [(0, 1, True, "distance"), (1, 2, False, "distance"), (2, 3, True, "distance"), (3, 3, False, "time")],
+)
+def test_no_caps_and_infinite_caps_give_the_same_bits(
+    seed: int, m: int, closed: bool, objective: str
+) -> None:
+    # Infinite caps against none, solved side by side: the feature is inert until a cap is finite.
+    # (The answers without caps were also compared with the engine's before caps, on 16 cases.)
+    problem = _random(seed, n=15, m=m, closed=closed)
+    search = TourSettings(seed=seed, objective=objective, order_iterations=150, iterations=10, bisection=1)
+    caps = np.inf if seed % 2 else np.full(m, np.inf)
+    capped = DiscProblem(problem.starts, problem.centres, problem.radii, closed, max_lengths=caps)
+    assert capped.caps is None and capped.max_lengths is not None
+    assert _same(plan_tours(capped, search), plan_tours(problem, search))
+
+
+def test_caps_share_the_work_out() -> None:
+    # Two vehicles at one start: the shortest total sends one of them round every disc.
+    rng = np.random.default_rng(8)
+    problem = DiscProblem([[0.0, 0.0], [0.0, 0.0]], rng.uniform(0, 10, (14, 2)), 0.3, True)
+    free = plan_tours(problem, FAST)
+    caps = np.array([0.7, 0.8]) * free.makespan
+    capped = plan_tours(DiscProblem(problem.starts, problem.centres, problem.radii, True, caps), FAST)
+    assert np.all(capped.lengths <= caps)
+    assert capped.total >= free.total * (1 - 1e-9)
+    check_tours(capped)
+    timed = TourSettings(objective="time", order_iterations=200, iterations=20, patience=10, bisection=2)
+    both = plan_tours(DiscProblem(problem.starts, problem.centres, problem.radii, True, caps), timed)
+    assert np.all(both.lengths <= caps)
+
+
+def test_a_target_out_of_reach_of_every_cap_is_proven_infeasible() -> None:
+    starts = [[0.0, 0.0], [10.0, 0.0]]
+    centres = [[1.0, 0.0], [9.0, 0.0], [5.0, 6.0]]  # the third is 6.3 from both starts, less 0.5
+    with pytest.raises(InfeasibleError, match="target 2"):
+        plan_tours(DiscProblem(starts, centres, 0.5, True, max_lengths=[11.0, 11.0]), FAST)
+    # Open routes need only reach it: the same caps are then proven nothing.
+    tours = plan_tours(DiscProblem(starts, centres, 0.5, False, max_lengths=[11.0, 11.0]), FAST)
+    assert np.all(tours.lengths <= 11.0)
+    with pytest.raises(InfeasibleError, match="target 2"):
+        plan_tours(DiscProblem(starts, centres, 0.5, False, max_lengths=[5.0, 5.0]), FAST)
+
+
+def test_caps_the_search_cannot_meet_are_a_solver_error_not_a_proof() -> None:
+    # Each disc is within reach of the cap, all four together are not: nothing proven.
+    centres = [[5.0, 0.0], [0.0, 5.0], [-5.0, 0.0], [0.0, -5.0]]
+    problem = DiscProblem([[0.0, 0.0]], centres, 0.1, True, max_lengths=10.5)
+    with pytest.raises(SolverError, match="max_lengths: the search did not find") as caught:
+        plan_tours(problem, FAST)
+    assert not isinstance(caught.value, InfeasibleError) and caught.value.status == "caps"
+
+
+def test_check_refuses_a_route_over_its_cap() -> None:
+    tours = plan_tours(_random(4, n=10), FAST)
+    p = tours.problem
+    over = DiscProblem(p.starts, p.centres, p.radii, p.closed, max_lengths=tours.lengths * 0.99)
+    with pytest.raises(SolverError, match="over its cap"):
+        check_tours(DiscTours(tours.routes, tours.points, tours.lengths, tours.turns, over))
+
+
+@pytest.mark.parametrize(
+    "caps", [[1.0, -1.0], [1.0, 0.0], [1.0, np.nan], [1.0], [[1.0, 2.0]], "long", -np.inf]
+)
+def test_bad_caps_are_named(caps: object) -> None:
+    with pytest.raises(ConfigError, match="max_lengths"):
+        DiscProblem([[0.0, 0.0], [1.0, 0.0]], [[1.0, 1.0]], 1.0, max_lengths=caps)  # type: ignore[arg-type]
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 10_000),
+    n=st.integers(1, 7),
+    m=st.integers(1, 3),
+    closed=st.booleans(),
+    factor=st.floats(0.3, 1.2),
+)
+def test_caps_hold_or_are_refused(seed: int, n: int, m: int, closed: bool, factor: float) -> None:
+    rng = np.random.default_rng(seed)
+    starts, centres, radii = rng.uniform(0, 5, (m, 2)), rng.uniform(0, 5, (n, 2)), rng.uniform(0.1, 1.5, n)
+    caps = factor * rng.uniform(0.5, 1.0, m) * 10.0
+    problem = DiscProblem(starts, centres, radii, closed, max_lengths=caps)
+    try:
+        tours = plan_tours(problem, TourSettings(order_iterations=50, iterations=5, patience=5))
+    except InfeasibleError as err:  # only with a proof: some disc out of every route's reach
+        gap = np.maximum(np.hypot(*(centres[:, None] - starts[None]).T).T - radii[:, None], 0.0)
+        need = gap * (2 if closed else 1)
+        n_lost = int(str(err).split("target ")[1].split(" ")[0])
+        assert np.all(need[n_lost] > caps)
+        return
+    except SolverError as err:
+        assert err.status == "caps"
+        return
+    assert np.all(tours.lengths <= caps)
+    assert np.all(coverage_gaps(tours) <= 0)

@@ -1,16 +1,20 @@
 """What the user's constraints say about the routes a planner orders: which return to their start,
-where they end, and how fast each platform may fly them."""
+where they end, how fast each platform may fly them, and so how long each route may be."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from pmht_opt.constraints.base import Constraint
 from pmht_opt.constraints.motion import SpeedLimit
 from pmht_opt.constraints.terminal import Terminal
+from pmht_opt.exceptions import SolverError
 from pmht_opt.scenario import Scenario
+from pmht_opt.tours import DiscProblem, DiscTours, TourSettings, plan_tours
 
 
 def terminal_ends(scenario: Scenario, constraints: Sequence[Constraint]) -> tuple[np.ndarray, bool]:
@@ -67,3 +71,39 @@ def route_budgets(scenario: Scenario, constraints: Sequence[Constraint]) -> np.n
     ramp = ramp_steps(T, steps)
     flying = steps - 0.5 * (ramp + (ramp if reserve else 0))
     return CRUISE_SHARE * speed_limits(scenario, constraints) * scenario.dt * flying
+
+
+def tours_within_budgets(
+    scenario: Scenario,
+    constraints: Sequence[Constraint],
+    problem: DiscProblem,
+    search: TourSettings,
+    **kwargs: Any,
+) -> DiscTours:
+    """The tour engine's routes with each platform's :func:`route_budgets` as its route's length cap.
+
+    The caps hold whatever the objective: with ``"distance"`` the shortest routes in total that each
+    platform can fly in the horizon, with ``"time"`` the earliest finish within them. ``kwargs`` go to
+    :func:`~pmht_opt.tours.plan_tours` (callback, stop).
+
+    Raises
+    ------
+    InfeasibleError
+        If a locale is out of every platform's reach within its budget (a proof), with what to change.
+    SolverError
+        If the search found no routes within the budgets (``status="caps"``), with what to change.
+    """
+    budgets = route_budgets(scenario, constraints)
+    capped = dataclasses.replace(problem, max_lengths=budgets)
+    try:
+        return plan_tours(capped, search, **kwargs)
+    except SolverError as err:
+        if err.status not in ("caps", "infeasible"):
+            raise
+        each = ", ".join(f"{b:.4g}" for b in budgets)
+        advice = (
+            f" The horizon of {scenario.horizon} steps of {scenario.dt:g} at each platform's speed limit "
+            f"lets the platforms fly {each} (from rest, at {CRUISE_SHARE:g} of the limit): lengthen the "
+            "horizon, raise the speed limit or add platforms."
+        )
+        raise type(err)(f"{err}{advice}", backend=err.backend, status=err.status) from err

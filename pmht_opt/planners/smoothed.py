@@ -11,7 +11,6 @@ ordered, so the returned paths pass the locales in tour order, guaranteed.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -29,7 +28,7 @@ from pmht_opt.ordering import TourResult, check_routes, order_locales
 from pmht_opt.planners.base import Planner, refuse_ignored
 from pmht_opt.planners.coverage.method import CoverageOptions, plan_cover
 from pmht_opt.planners.progress import observing, with_progress
-from pmht_opt.planners.routes import closed_routes, route_budgets
+from pmht_opt.planners.routes import closed_routes, tours_within_budgets
 from pmht_opt.planners.windows import (
     SPLITS,
     TourVisits,
@@ -49,7 +48,7 @@ from pmht_opt.stopping import (
     StoppingCriterion,
     iteration_limit,
 )
-from pmht_opt.tours import DiscProblem, TourSettings, plan_tours
+from pmht_opt.tours import DiscProblem, TourSettings
 
 #: When :func:`plan_smoothed` stops by default: the tour fixes the assignment, so once the visits are
 #: at full strength the paths only polish; a position change below 3e-4 of the area for three
@@ -291,9 +290,9 @@ class SmoothedOptions:
         That method's own options (for ``"tours"``: :class:`~pmht_opt.tours.TourSettings`' effort).
     objective
         ``"distance"`` (default: the shortest routes in total) or ``"time"`` (the longest route as
-        short as can be: the earliest finish; ``"tours"`` only). When the shortest routes ask a
-        platform for more than its speed limit lets it fly in the horizon, ``"tours"`` searches the
-        routes that finish earliest instead.
+        short as can be: the earliest finish; ``"tours"`` only). With ``"tours"`` each route is
+        capped at what its platform can fly in the horizon at its speed limit, whatever the objective
+        (:func:`~pmht_opt.planners.routes.tours_within_budgets`).
     visit_radius
         Each locale is passed within this distance, at a step inside its sub-batch; default: the
         scenario's coverage radius.
@@ -383,9 +382,5 @@ def order_for(scenario: Scenario, settings: Settings, options: SmoothedOptions) 
     radius = scenario.radii if given is None else np.full(scenario.n_locales, float(given))
     problem = DiscProblem(scenario.start_positions, scenario.locales, radius, closed=closed)
     search = TourSettings(seed=settings.seed, objective=options.objective, **options.order_options)
-    tours = plan_tours(problem, search)
-    budgets = route_budgets(scenario, settings.constraints)
-    objective = options.objective
-    if objective == "distance" and np.any(tours.lengths > budgets):
-        tours, objective = plan_tours(problem, dataclasses.replace(search, objective="time")), "time"
-    return [np.asarray(r, dtype=np.intp) for r in tours.routes], objective
+    tours = tours_within_budgets(scenario, settings.constraints, problem, search)
+    return [np.asarray(r, dtype=np.intp) for r in tours.routes], options.objective

@@ -12,6 +12,11 @@ afterwards (:mod:`pmht_opt.tours.polish`).
 - **Drop**: take :math:`k` out when the shortened polyline still meets its disc: covering in passing.
 - **2-opt**: reverse a stretch of a route.
 
+With route length caps (:mod:`pmht_opt.tours.caps`) a move is priced first by how much it changes the
+routes' excess over their caps, then by its saving: a move that would take a route over its cap (or
+further over it) is never made, and while a route is over its cap any of its discs may move to any
+leg of another route that takes it with less excess, whatever the move costs in length.
+
 A move must keep every disc met. The discs that only the removed legs met are checked against the new
 polyline before a move is kept, so the search never leaves the feasible set. Moves of one pass are
 priced on the pass's starting tour, sorted, and applied best first while they touch no vertex that an
@@ -25,6 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pmht_opt.tours.caps import excess_change
 from pmht_opt.tours.detour import best_points, reach_points
 from pmht_opt.tours.geometry import segment_distances
 from pmht_opt.tours.tour import Tour
@@ -111,9 +117,18 @@ def relocate_pass(
     orphan[ks_a, col] = False
     valid = ~orphan.any(axis=0)
     self_cov = (cnt[ks_a] - Cin[ks_a, col] - Cout[ks_a, col] > 0) | (Dnew[ks_a, col] <= r[ks_a])
-    moves: list[tuple[float, int, int, np.ndarray | None]] = []  # (delta, key column, leg or -1, point)
-    for d0 in np.flatnonzero(valid & self_cov & (gain > EPS)):
-        moves.append((-float(gain[d0]), int(d0), -1, None))
+    lengths = tour.lengths()
+    kroute = R[kin_a]
+    caps = lay.caps
+    # (excess change, delta, key column, leg or -1, point)
+    moves: list[tuple[float, float, int, int, np.ndarray | None]] = []
+    drops = np.flatnonzero(valid & self_cov & (gain > EPS))
+    dex = np.zeros(len(drops))
+    if caps is not None:
+        src = kroute[drops]
+        dex = excess_change(caps, lengths, src, src, gain[drops], np.zeros(len(drops)))
+    for d0, e in zip(drops, dex, strict=True):
+        moves.append((float(e), -float(gain[d0]), int(d0), -1, None))
     # Insertion into other legs: the cheapest few by a lower bound, then exact detours.
     zk, rk = c[ks_a], r[ks_a]
     lb = _norm(A[None] - zk[:, None]) + _norm(zk[:, None] - B[None]) - 2 * rk[:, None] - _norm(A - B)[None]
@@ -121,13 +136,13 @@ def relocate_pass(
     lb[col, kin_a] = np.inf
     lb[col, kout_a] = np.inf
     lb[~valid] = np.inf
-    lengths = tour.lengths()
     timed = objective == "time" and M > 1
     crit = int(np.argmax(lengths))
-    kroute = R[kin_a]
     # Distance: only insertions that can pay for the removal. Time: from the longest route, any leg
-    # of another route may receive the disc.
+    # of another route may receive the disc; so may any from a route over its cap.
     free = (kroute[:, None] == crit) & (R[None, :] != crit) if timed else np.zeros_like(lb, dtype=bool)
+    if caps is not None and (lengths > caps).any():
+        free |= (lengths > caps)[kroute][:, None] & (R[None, :] != kroute[:, None])
     lb[(lb >= gain[:, None] - EPS) & ~free] = np.inf
     nb = min(neighbours, lb.shape[1])
     near = (
@@ -155,23 +170,27 @@ def relocate_pass(
     if t.any():
         pts[t], cost[t] = reach_points(la[t], zk[rows[t]], rk[rows[t]])
     delta = cost - gain[rows]
-    for o in np.flatnonzero(delta < -EPS):
-        moves.append((float(delta[o]), int(rows[o]), int(legs[o]), pts[o]))
+    dex = np.zeros(len(rows))
+    if caps is not None:
+        dst = np.where(own, kroute[rows], R[np.maximum(legs, 0)])
+        dex = excess_change(caps, lengths, kroute[rows], dst, gain[rows], cost)
+    for o in np.flatnonzero((dex < 0) | ((dex == 0) & (delta < -EPS))):
+        moves.append((float(dex[o]), float(delta[o]), int(rows[o]), int(legs[o]), pts[o]))
     if timed:
         span = float(lengths.max())
-        for o in np.flatnonzero((delta >= -EPS) & ~own):
+        for o in np.flatnonzero((delta >= -EPS) & ~own & (dex == 0)):
             r0, l0 = int(rows[o]), int(legs[o])
             if kroute[r0] == crit and R[l0] != crit:
                 after = lengths.copy()
                 after[crit] -= gain[r0]
                 after[R[l0]] += cost[o]
                 if after.max() < span * (1 - 1e-12):  # ranked after every distance move
-                    moves.append((float(after.max() - span) + 1e3, r0, l0, pts[o]))
-    moves.sort(key=lambda mv: (mv[0], mv[1], mv[2]))
+                    moves.append((0.0, float(after.max() - span) + 1e3, r0, l0, pts[o]))
+    moves.sort(key=lambda mv: (mv[0], mv[1], mv[2], mv[3]))
     touched: set[int] = set()
     applied = 0
     before = tour.score(objective)
-    for _, i, leg, q in moves:
+    for _, _, i, leg, q in moves:
         k = int(ks_a[i])
         if k in touched:
             continue
@@ -202,7 +221,9 @@ def relocate_pass(
             for r_, (kk, pp) in saved.items():
                 tour.keys[r_], tour.pts[r_] = kk, pp
             continue
-        if timed:  # prices were made on the pass's first tour: the longest route may have changed
+        if timed or caps is not None:
+            # Prices were made on the pass's first tour: the longest route may have changed, and
+            # moves into one route may together take it over its cap.
             now = tour.score(objective)
             if not now < before:
                 for r_, (kk, pp) in saved.items():
@@ -267,12 +288,14 @@ def insert_cheapest(tour: Tour, disc: int, objective: str = "distance") -> np.nd
     """Make ``disc`` a key at its cheapest place over all legs of all routes (its best point there).
 
     With ``objective="time"`` the place that keeps the longest route shortest wins, then the cheapest.
+    With caps, places that keep the route within its cap (or least over it) come first.
     Returns the replaced leg's ends and the new turn point, ``(3, 2)``: start, point, end.
     """
     lay = tour.layout
     z, rr = lay.centres[disc], lay.radii[disc]
-    lengths = tour.lengths() if objective == "time" else np.zeros(len(tour.keys))
-    best: tuple[tuple[float, float], int, int, np.ndarray, np.ndarray] | None = None
+    caps = lay.caps
+    lengths = tour.lengths() if objective == "time" or caps is not None else np.zeros(len(tour.keys))
+    best: tuple[tuple[float, float, float], int, int, np.ndarray, np.ndarray] | None = None
     for m in range(len(tour.keys)):
         V = tour.verts(m)
         n = len(V) - 1
@@ -280,13 +303,16 @@ def insert_cheapest(tour: Tour, disc: int, objective: str = "distance") -> np.nd
         cost = f - _norm(V[:-1] - V[1:])
         if not lay.closed[m]:
             q[-1], cost[-1] = reach_points(V[-1], z, np.array(rr))
-        i = int(np.argmin(cost))
+        i = int(np.argmin(cost))  # also the least excess on this route: it grows with the cost
+        over = 0.0
+        if caps is not None:
+            over = float(max(lengths[m] + cost[i] - caps[m], 0.0) - max(lengths[m] - caps[m], 0.0))
         if objective == "time":
             after = lengths.copy()
             after[m] += cost[i]
-            key = (float(after.max()), float(cost[i]))
+            key = (over, float(after.max()), float(cost[i]))
         else:
-            key = (float(cost[i]), 0.0)
+            key = (over, float(cost[i]), 0.0)
         if best is None or key < best[0]:
             best = (key, m, i, q[i], V[i : i + 2])
     assert best is not None

@@ -29,6 +29,22 @@ def _array(name: str, value: Any, shape: tuple[int | None, ...]) -> np.ndarray:
     return arr
 
 
+def _caps(value: Any, M: int) -> np.ndarray:
+    """Route length caps: ``(M,)`` positive numbers or ``inf`` (a scalar is broadcast)."""
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"max_lengths: expected {M} positive numbers or inf ({err}).") from None
+    if arr.ndim == 0:
+        arr = np.full(M, float(arr))
+    if arr.shape != (M,):
+        raise ConfigError(f"max_lengths: expected one cap per vehicle, shape ({M},), got {arr.shape}.")
+    if np.isnan(arr).any() or not (arr > 0).all():
+        raise ConfigError(f"max_lengths: every cap must be a positive number or inf, got {arr.tolist()}.")
+    arr.setflags(write=False)
+    return arr
+
+
 @dataclass(frozen=True)
 class DiscProblem:
     """Vehicles' starts and the target discs that their routes must meet.
@@ -43,12 +59,18 @@ class DiscProblem:
         ``(N,)`` radius of each target's disc (``> 0``); a scalar is broadcast.
     closed
         Per vehicle (or one value for all): whether its route returns to its own start.
+    max_lengths
+        Per vehicle (or one value for all): the longest its route may be, a positive number or
+        ``inf``; None (default) for no cap. A cap is a hard constraint of every objective: for
+        example what a platform can fly in a mission's horizon at its speed limit. Caps that are all
+        ``inf`` are the same problem as None, solved to the same bits.
     """
 
     starts: np.ndarray
     centres: np.ndarray
     radii: np.ndarray
     closed: bool | np.ndarray = False
+    max_lengths: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         starts = _array("starts", self.starts, (None, 2))
@@ -80,6 +102,15 @@ class DiscProblem:
         object.__setattr__(self, "centres", centres)
         object.__setattr__(self, "radii", radii.copy() if not radii.flags.owndata else radii)
         object.__setattr__(self, "closed", closed)
+        if self.max_lengths is not None:
+            object.__setattr__(self, "max_lengths", _caps(self.max_lengths, starts.shape[0]))
+
+    @property
+    def caps(self) -> np.ndarray | None:
+        """``(M,)`` the finite caps with ``inf`` for none, or None when no route has a finite cap."""
+        if self.max_lengths is None or not np.isfinite(self.max_lengths).any():
+            return None
+        return self.max_lengths
 
     @property
     def n_vehicles(self) -> int:

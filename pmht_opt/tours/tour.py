@@ -20,12 +20,21 @@ from pmht_opt.tours.geometry import segment_distances
 
 @dataclass(frozen=True)
 class Layout:
-    """The normalised problem: starts ``(M, 2)``, closed ``(M,)``, centres ``(N, 2)``, radii ``(N,)``."""
+    """The normalised problem: starts ``(M, 2)``, closed ``(M,)``, centres ``(N, 2)``, radii ``(N,)``,
+    and the route length caps ``(M,)`` (``inf`` for none), or None when no route has one."""
 
     starts: np.ndarray
     closed: np.ndarray
     centres: np.ndarray
     radii: np.ndarray
+    caps: np.ndarray | None = None
+
+    def excess(self, lengths: np.ndarray) -> float:
+        r"""How far routes of these lengths go over their caps in all,
+        :math:`\sum_m \max(0, L_m - c_m)` (0 without caps)."""
+        if self.caps is None:
+            return 0.0
+        return float(np.maximum(lengths - self.caps, 0.0).sum())
 
 
 @dataclass
@@ -55,12 +64,17 @@ class Tour:
             out[m] = np.hypot(*np.diff(v, axis=0).T).sum()
         return out
 
-    def score(self, objective: str) -> tuple[float, float]:
-        """Lexicographic score, lower is better: (total, total), or (longest route, total) for
-        ``objective="time"``."""
+    def score(self, objective: str) -> tuple[float, float, float]:
+        """Lexicographic score, lower is better: (excess over the caps, total, total), or (excess,
+        longest route, total) for ``objective="time"``.
+
+        The excess comes first: a tour within its caps beats every tour that is not, and among tours
+        that are not, the one nearer to them wins. Without caps it is always 0 and the order is that
+        of the last two entries alone.
+        """
         lengths = self.lengths()
         total = float(lengths.sum())
-        return (float(lengths.max()) if objective == "time" else total, total)
+        return (self.layout.excess(lengths), float(lengths.max()) if objective == "time" else total, total)
 
     def legs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All legs: start points ``(L, 2)``, end points ``(L, 2)`` and each leg's route ``(L,)``."""

@@ -41,7 +41,8 @@ def coverage_gaps(tours: DiscTours, rtol: float = RTOL) -> np.ndarray:
 
 
 def check_tours(tours: DiscTours, rtol: float = RTOL) -> None:
-    """Raise SolverError unless every target is covered and the routes, points and lengths agree."""
+    """Raise SolverError unless every target is covered, the routes, points and lengths agree, and
+    every route's polyline is within its cap (``problem.max_lengths``, to ``rtol``)."""
     prob = tours.problem
     N = prob.n_targets
     listed = (
@@ -72,3 +73,9 @@ def check_tours(tours: DiscTours, rtol: float = RTOL) -> None:
             raise SolverError(
                 f"route {m}: reported length {tours.lengths[m]} is not its polyline's {length}."
             )
+    caps = prob.caps
+    if caps is not None:
+        for m in range(prob.n_vehicles):
+            length = float(np.hypot(*np.diff(tours.vertices(m), axis=0).T).sum())
+            if length > caps[m] * (1 + rtol):
+                raise SolverError(f"route {m}: its length {length:.10g} is over its cap {caps[m]:.10g}.")

@@ -22,15 +22,15 @@ import numpy as np
 from pmht_opt import validation
 from pmht_opt.constraints.feasibility import check_feasible
 from pmht_opt.constraints.visits import VisitAll
-from pmht_opt.exceptions import ConfigError, SolverError
+from pmht_opt.exceptions import ConfigError
 from pmht_opt.planners.base import Planner
 from pmht_opt.planners.coverage.fly import fly
-from pmht_opt.planners.routes import closed_routes, route_budgets
+from pmht_opt.planners.routes import closed_routes, tours_within_budgets
 from pmht_opt.result import PlanResult
 from pmht_opt.scenario import Scenario
 from pmht_opt.settings import Settings
 from pmht_opt.stopping import AnyOf, Progress, ProgressObserver, StoppingCriterion
-from pmht_opt.tours import DiscProblem, DiscTours, TourSettings, plan_tours
+from pmht_opt.tours import DiscProblem, TourSettings
 from pmht_opt.tours import Progress as TourProgress
 
 #: The tour search's effort options (:class:`~pmht_opt.tours.TourSettings`) a caller may set.
@@ -58,7 +58,10 @@ class CoverageOptions:
         (default) for the scenario's :attr:`~pmht_opt.Scenario.coverage_radius`.
     objective
         ``"distance"`` (default: the shortest routes in total, the paper's metric) or ``"time"``
-        (the earliest finish: the longest route as short as it can be, then the total).
+        (the earliest finish: the longest route as short as it can be, then the total). Either way
+        each route is capped at what its platform can fly in the horizon at its speed limit
+        (:func:`~pmht_opt.planners.routes.tours_within_budgets`): with ``"distance"``, the shortest
+        routes in total that fit the horizon.
     smoothing
         How much the smooth paths round the tour's corners: over ``smoothing`` times the median
         coverage radius (the rule of :mod:`pmht_opt.planners.coverage.flight`). Smaller follows the
@@ -151,34 +154,20 @@ def plan_cover(
         if callback is not None:
             callback(observed(p))
 
-    def search_tours(objective: str) -> DiscTours:
-        return plan_tours(
-            problem,
-            dataclasses.replace(search, objective=objective),
-            callback=None if callback is None else report,
-            stop=None if stop is None else (lambda p: bool(stop(observed(p)))),
-        )
-
-    budgets = route_budgets(sc, settings.constraints)
-    tours = search_tours(options.objective)
-    objective = options.objective
-    if objective == "distance" and np.any(tours.lengths > budgets):
-        # The shortest routes in total ask one platform for more than it can fly in the horizon at
-        # its speed limit: the routes that finish earliest share the work out.
-        tours, objective = search_tours("time"), "time"
-    long = np.flatnonzero(tours.lengths > budgets)
-    if long.size:
-        m = int(long[0])
-        raise SolverError(
-            f"the routes found need platform {m} to fly {tours.lengths[m]:.4g}, and the horizon of "
-            f"{sc.horizon} steps at its speed limit lets it fly {budgets[m]:.4g} (routes as balanced as "
-            "the search found); lengthen the horizon, raise the limit or add platforms.",
-            backend="tours",
-        )
+    # Each route no longer than its platform can fly in the horizon at its speed limit: a hard cap of
+    # the search whatever the objective (SolverError saying what to change when none is found).
+    tours = tours_within_budgets(
+        sc,
+        settings.constraints,
+        problem,
+        search,
+        callback=None if callback is None else report,
+        stop=None if stop is None else (lambda p: bool(stop(observed(p)))),
+    )
     dynamic = any(c.dynamic for c in settings.constraints)
     iterations = options.iterations or (DYNAMIC_ITERATIONS if dynamic else ITERATIONS)
     result = fly(sc, tours, settings, options.smoothing, iterations)
-    result.extras.update({"objective": objective, "search": tours.info})
+    result.extras.update({"objective": options.objective, "search": tours.info})
     result.wall_time = time.perf_counter() - t0
     return dataclasses.replace(result, scenario=scenario) if options.radius is None else result
 
