@@ -63,6 +63,9 @@ STUDIES: dict[str, Study] = {
     "coverage": Study(
         "studies.coverage_study", "distance at equal coverage over sensor radii, Pareto fronts"
     ),
+    "cetsp": Study(
+        "studies.cetsp", "the coverage planner on the Close-Enough TSP benchmark against the best published"
+    ),
 }
 
 

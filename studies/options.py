@@ -4,8 +4,9 @@ once, and the one way a study of trials runs into its directory.
 Each study adds a frozen dataclass of its own options; both kinds validate themselves on construction
 and raise :class:`~pmht_opt.exceptions.ConfigError` naming the command-line option, so a bad input stops
 the run before any work starts. A study's own options derive from :class:`StudyOptions` and declare each
-field with its command-line form (:func:`option` with :class:`Count`, :class:`Choices`,
-:class:`Positives` or :class:`Without`), so every study words its checks and its options alike.
+field with its command-line form (:func:`option` with :class:`Count`, :class:`Integers`,
+:class:`Choices`, :class:`Positives`, :class:`Texts`, :class:`Text`, :class:`Flag` or :class:`Without`),
+so every study words its checks and its options alike.
 """
 
 from __future__ import annotations
@@ -119,7 +120,8 @@ class Positives(Option):
 
     def add(self, p: argparse.ArgumentParser, default: Any) -> None:
         """``FLAG X [X ...]``."""
-        p.add_argument(self.flag, nargs="+", type=float, default=list(default), help=self.help)
+        given = None if default is None else list(default)
+        p.add_argument(self.flag, nargs="+", type=float, default=given, help=self.help)
 
     def check(self, value: Any) -> None:
         """Every value finite and positive, and at least one."""
@@ -142,6 +144,83 @@ class Without(Option):
     def read(self, given: Any) -> Any:
         """On unless the flag was given."""
         return not given
+
+
+@dataclass(frozen=True)
+class Integers(Option):
+    """One or more integers of at least ``minimum`` (seeds, horizons)."""
+
+    minimum: int = 0
+
+    def add(self, p: argparse.ArgumentParser, default: Any) -> None:
+        """``FLAG N [N ...]``."""
+        given = None if default is None else list(default)
+        p.add_argument(self.flag, nargs="+", type=int, default=given, help=self.help)
+
+    def check(self, value: Any) -> None:
+        """At least one value, each an integer of at least ``minimum``."""
+        if not value:
+            raise ConfigError(f"{self.flag}: expected at least one integer, got {list(value)}.")
+        for v in value:
+            positive_int(self.flag, v, minimum=self.minimum)
+
+    def read(self, given: Any) -> Any:
+        """A tuple of ints."""
+        return tuple(int(v) for v in given)
+
+
+@dataclass(frozen=True)
+class Texts(Option):
+    """Zero or more non-empty words (names, paths); ``empty`` whether none at all is allowed."""
+
+    empty: bool = False
+
+    def add(self, p: argparse.ArgumentParser, default: Any) -> None:
+        """``FLAG WORD [WORD ...]``."""
+        given = None if default is None else list(default)
+        p.add_argument(self.flag, nargs="*" if self.empty else "+", default=given, help=self.help)
+
+    def check(self, value: Any) -> None:
+        """Every value a non-empty string (and at least one unless ``empty``)."""
+        if not isinstance(value, tuple) or (not value and not self.empty):
+            raise ConfigError(f"{self.flag}: expected at least one value, got {value!r}.")
+        if any(not isinstance(v, str) or not v.strip() for v in value):
+            raise ConfigError(f"{self.flag}: expected non-empty words, got {list(value)}.")
+
+    def read(self, given: Any) -> Any:
+        """A tuple of strings."""
+        return tuple(str(v) for v in given)
+
+
+@dataclass(frozen=True)
+class Text(Option):
+    """One word, or ``""`` for none (a path that may be left out)."""
+
+    def add(self, p: argparse.ArgumentParser, default: Any) -> None:
+        """``FLAG WORD``."""
+        p.add_argument(self.flag, default=default, help=self.help)
+
+    def check(self, value: Any) -> None:
+        """A string."""
+        if not isinstance(value, str):
+            raise ConfigError(f"{self.flag}: expected a word, got {value!r}.")
+
+    def read(self, given: Any) -> Any:
+        """The string (``""`` when not given)."""
+        return "" if given is None else str(given)
+
+
+@dataclass(frozen=True)
+class Flag(Option):
+    """A flag that turns on a field that is off by default."""
+
+    def add(self, p: argparse.ArgumentParser, default: Any) -> None:
+        """``--...``, no value."""
+        p.add_argument(self.flag, action="store_true", help=self.help)
+
+    def read(self, given: Any) -> Any:
+        """On when the flag was given."""
+        return bool(given)
 
 
 def option(default: Any, spec: Option) -> Any:

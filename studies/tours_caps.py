@@ -27,8 +27,8 @@ import numpy as np
 from pmht_opt.io import example_mission
 from pmht_opt.planners.routes import closed_routes, route_budgets
 from pmht_opt.tours import DiscProblem, DiscTours, TourSettings, plan_tours
-from studies.cetsp_tours import RESULTS, provenance
-from studies.tours_fleet import scenario
+from studies.provenance import provenance
+from studies.tours_fleet import RESULTS, scenario
 
 
 def capped(problem: DiscProblem, caps: np.ndarray) -> DiscProblem:

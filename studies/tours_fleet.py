@@ -20,12 +20,15 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pmht_opt.tours import DiscProblem, TourSettings, check_tours, plan_tours
-from studies.cetsp_tours import RESULTS, provenance
+from studies.provenance import provenance
+
+RESULTS = Path(__file__).resolve().parent / "results" / "tours_fleet"
 
 
 def scenario(name: str, seed: int, radius: float, closed: bool) -> DiscProblem:

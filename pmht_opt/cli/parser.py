@@ -259,7 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
     # own parser (and its imports) is reached only when a study runs.
     study = sub.add_parser(
         "study",
-        help="run a study (table1, anneal, solvers, scaling) into a directory; see pmht-opt study --help",
+        help="run one of the studies into a directory; pmht-opt study --help lists them",
         add_help=False,
     )
     study.add_argument("args", nargs=argparse.REMAINDER)

@@ -1,6 +1,6 @@
 r"""Plan straight-line routes that meet every disc: an order from PyVRP, then ruin and recreate.
 
-Stages, each measured in the package's study (``studies/cetsp_tours.py``):
+Stages, each measured by the benchmark study (``pmht-opt study cetsp``):
 
 1. **Normalise** the problem into the unit box (:mod:`pmht_opt.tours.geometry`): the same tours
    whatever the units.
