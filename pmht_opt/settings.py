@@ -52,9 +52,9 @@ class Settings:
     solver_settings
         Options passed verbatim to the backend (e.g. ``{"eps_abs": 1e-8}`` for OSQP,
         ``{"cvxpy_solver": "SCS"}`` for cvxpy), and two of the M-step's own:
-        ``"mstep_work_limit"`` (OSQP's work budget per constrained M-step, ``None`` lifts it) and
-        ``"condense"`` (``False``: constrained M-steps solve the full QP instead of first a small one on
-        the rows that bind, :mod:`pmht_opt.mstep.condensed`).
+        ``"mstep_work_limit"`` (OSQP's work budget per platform of a constrained M-step, ``None``
+        lifts it) and ``"condense"`` (``False``: constrained M-steps solve the full QP instead of
+        first a small one on the rows that bind, :mod:`pmht_opt.mstep.condensed`).
     accept_inaccurate
         Use solutions the backend flags as inaccurate instead of raising :class:`SolverError`.
     threads

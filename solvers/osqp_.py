@@ -26,6 +26,8 @@ bounds the work of several sessions together in the same unit.
 
 from __future__ import annotations
 
+import contextlib
+import sys
 import time
 from typing import Any, ClassVar
 
@@ -34,6 +36,7 @@ import osqp
 
 from solvers.exceptions import ProblemError, SettingsError, UnsupportedProblemError, UpdateError
 from solvers.problem import QPSolution, Status
+from solvers.quiet import captured, first_line
 from solvers.session import QPSession, Update, WorkBudget, work_amount
 
 DEFAULTS: dict[str, Any] = {
@@ -72,15 +75,25 @@ def _error_name(err: Exception) -> str:
         return f"error {code!r}"
 
 
-def _setup_error(err: Exception) -> Exception:
+def _said(printed: str) -> str:
+    """What OSQP's C code printed about a refusal, as a clause (``""`` if nothing): its first line
+    without the ``ERROR in function:`` prefix."""
+    line = first_line(printed)
+    if line.startswith("ERROR in ") and ":" in line:
+        line = line.split(":", 1)[1].strip()
+    return f": {line}" if line else ""
+
+
+def _setup_error(err: Exception, printed: str = "") -> Exception:
     """The layer's error for an ``OSQPException`` at setup: its settings or its data were refused.
 
-    OSQP's C code also prints its own line on stderr naming the offending setting or bound.
+    OSQP's C code prints a line naming the offending setting or bound; it is captured
+    (:func:`solvers.quiet.captured`) and becomes part of the message.
     """
     name = _error_name(err)
     if err.args and err.args[0] == osqp.SolverError.OSQP_SETTINGS_VALIDATION_ERROR:
-        return SettingsError(f"OSQP rejected its settings ({name}).")
-    return ProblemError(f"OSQP refused the problem ({name}).")
+        return SettingsError(f"OSQP rejected its settings ({name}){_said(printed)}.")
+    return ProblemError(f"OSQP refused the problem ({name}){_said(printed)}.")
 
 
 #: Settings OSQP changes in place between solves, so that a solve can continue from its iterate.
@@ -153,12 +166,16 @@ class OSQPSession(QPSession):
         self._solver = osqp.OSQP()
         lower, upper = self._bounds()
         prob = self.problem
-        try:
-            self._solver.setup(prob.P, prob.q, prob.A, lower, upper, **opts)
-        except (TypeError, ValueError) as err:
-            raise SettingsError(f"OSQP rejected its settings: {err}") from err
-        except osqp.OSQPException as err:
-            raise _setup_error(err) from err
+        with captured() as printed:
+            try:
+                self._solver.setup(prob.P, prob.q, prob.A, lower, upper, **opts)
+            except (TypeError, ValueError) as err:
+                raise SettingsError(f"OSQP rejected its settings: {err}") from err
+            except osqp.OSQPException as err:
+                raise _setup_error(err, printed.getvalue()) from err
+        self._verbose = bool(opts.get("verbose"))
+        if self._verbose:  # asked for: OSQP's header goes where it would have gone
+            sys.stdout.write(printed.getvalue())
 
     def _apply_update(self, update: Update) -> None:
         kwargs: dict[str, Any] = {}
@@ -173,10 +190,13 @@ class OSQPSession(QPSession):
         if self._work_limit is not None:
             self._own = WorkBudget(self._work_limit)
         if kwargs:
-            try:
-                self._solver.update(**kwargs)
-            except osqp.OSQPException as err:
-                raise UpdateError(f"OSQP rejected the update: {_error_name(err)}.") from err
+            with captured() as printed:
+                try:
+                    self._solver.update(**kwargs)
+                except osqp.OSQPException as err:
+                    raise UpdateError(
+                        f"OSQP rejected the update ({_error_name(err)}){_said(printed.getvalue())}."
+                    ) from err
 
     def warm_start(self, x: np.ndarray | None = None, y: np.ndarray | None = None) -> bool:
         """Start the next ADMM iterations from ``x`` and ``y`` (OSQP's ``warm_start``; an omitted one
@@ -198,12 +218,16 @@ class OSQPSession(QPSession):
             return None
         if "polish_tolerance" in settings:
             self._polish_tol = _tolerance(settings["polish_tolerance"])
-        try:
-            self._solver.update_settings(**{k: v for k, v in settings.items() if k not in LAYER})
-        except (TypeError, ValueError) as err:
-            raise SettingsError(f"OSQP rejected its settings: {err}") from err
-        except osqp.OSQPException as err:
-            raise _setup_error(err) from err
+        with captured() as printed:
+            try:
+                self._solver.update_settings(**{k: v for k, v in settings.items() if k not in LAYER})
+            except (TypeError, ValueError) as err:
+                raise SettingsError(f"OSQP rejected its settings: {err}") from err
+            except osqp.OSQPException as err:
+                raise _setup_error(err, printed.getvalue()) from err
+        if printed.getvalue().strip():
+            # OSQP prints a refused update of its settings and carries on with the old value.
+            raise SettingsError(f"OSQP rejected its settings{_said(printed.getvalue())}.")
         self.settings.update(settings)
         self._max_iter = int(settings.get("max_iter", self._max_iter))
         return self.solve()
@@ -238,7 +262,9 @@ class OSQPSession(QPSession):
                 )
             self._solver.update_settings(max_iter=min(self._max_iter, room))
         t0 = time.perf_counter()
-        res = self._solver.solve(raise_error=False)
+        # Captured unless asked for: "Solver interrupted" on Ctrl-C, which the status says.
+        with contextlib.nullcontext() if self._verbose else captured():
+            res = self._solver.solve(raise_error=False)
         elapsed = time.perf_counter() - t0
         info = res.info
         for budget in (self._own, self.budget):

@@ -126,6 +126,43 @@ def test_unknown_setting_raises_settings_error(backend: str) -> None:
         solvers.open_session(prob, backend, no_such_option=1)
 
 
+def test_osqp_names_a_refused_setting_and_prints_nothing(capfd: pytest.CaptureFixture[str]) -> None:
+    """OSQP's C code prints its refusal; the layer's exception carries it, the terminal gets none."""
+    prob, _ = eq_ineq_problem()
+    with pytest.raises(solvers.SettingsError, match="eps_abs must be nonnegative"):
+        solvers.open_session(prob, "osqp", eps_abs=-1.0)
+    session = solvers.open_session(box_smoothing_problem(), "osqp")
+    with pytest.raises(solvers.SettingsError, match="max_iter"):
+        session.resume(max_iter=0)
+    assert capfd.readouterr() == ("", "")
+
+
+def test_captured_output_is_per_thread(capsys: pytest.CaptureFixture[str]) -> None:
+    """What one thread prints inside a capture is kept from the stream; other threads print as before."""
+    import threading
+
+    from solvers.quiet import captured
+
+    inside, go, done = threading.Event(), threading.Event(), threading.Event()
+
+    def capturing() -> None:
+        with captured() as buffer:
+            print("kept")
+            inside.set()
+            go.wait(5)
+        assert buffer.getvalue() == "kept\n"
+        done.set()
+
+    worker = threading.Thread(target=capturing)
+    worker.start()
+    assert inside.wait(5)
+    print("shown")  # the main thread, while the worker captures
+    go.set()
+    worker.join(5)
+    assert done.is_set()
+    assert capsys.readouterr().out == "shown\n"
+
+
 def test_update_with_wrong_size_raises() -> None:
     prob, _ = eq_ineq_problem()
     session = solvers.open_session(prob, "clarabel")

@@ -29,7 +29,6 @@ PIVOT = 1e-13
 EIGEN = 1e-12
 
 
-
 Root = tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]
 
 

@@ -113,6 +113,8 @@ ATTEMPT_WORK = 4e9
 COSTLY_WORK = 2e8
 #: Most M-steps left to the full QP after condensed solves that did not succeed.
 SKIP_MAX = 15
+
+
 class CondensedQP:
     """The condensed constrained M-step of one platform over one horizon (module docstring).
 
@@ -382,4 +384,3 @@ def _missed_in(margin: np.ndarray, kind: np.ndarray, size: np.ndarray) -> bool:
     acceleration of zero is verified to 1e-11)."""
     least = np.where(kind == 0, 0.0, MET) + ROUNDING * np.maximum(size, 1.0)
     return bool(np.any(-margin > least))
-

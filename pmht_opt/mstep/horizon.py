@@ -208,7 +208,7 @@ class HorizonQP:
         ``probe`` is called with a failed constrained solve before any retry; it may raise (the
         M-step asks whether the rows are infeasible, which a cheap feasibility problem settles far
         sooner than a chain of retries of a solver that cannot succeed). ``budget`` is the work this
-        solve and its retries share with the M-step's other platforms (:class:`solvers.WorkBudget`).
+        solve and its retries may spend together (:class:`solvers.WorkBudget`).
         ``exact`` is the unconstrained optimum's states and whitened noise ``(T, 6)``, if the caller
         has them: a condensed solve starts from them (:mod:`pmht_opt.mstep.condensed`).
 

@@ -122,7 +122,8 @@ class QPMStep(MStep):
     ) -> None:
         super().__init__(scenario, settings, accept_inaccurate, constraints, reference=reference, check=check)
         self.solver = solver
-        #: Work budget of one M-step with constraint rows (``None``: none), :data:`MSTEP_WORK`.
+        #: Work budget of each platform's solve in an M-step with constraint rows (``None``: none),
+        #: :data:`MSTEP_WORK`.
         self.mstep_work = _work_limit(self.settings.pop("mstep_work_limit", MSTEP_WORK.get(solver)))
         #: Whether constrained M-steps are condensed first (:mod:`pmht_opt.mstep.condensed`).
         self.condense = flag("solver_settings.condense", self.settings.pop("condense", solver in CONDENSED))
@@ -260,12 +261,14 @@ class QPMStep(MStep):
         others: ``exact`` with its states and noise ``laid_out`` (``side_by_side``), or still being
         computed (``laid_out`` then ``None``: the solves cannot start from it)."""
         exact_states, exact_noise = laid_out if laid_out is not None else (None, None)
-        budget = solvers.WorkBudget(self.mstep_work) if constrained and self.mstep_work else None
         verdicts: dict[int, PmhtOptError] = {}
 
         def one(m: int) -> tuple[solvers.QPSolution, np.ndarray, np.ndarray]:
             # A failed platform fails the M-step at once: the platforms after it are not solved.
             platform_rows = rows.get(m)
+            # Each platform its own budget: a budget shared by threads would make what one platform
+            # may spend depend on how far the others had got, and so the answer on thread timing.
+            budget = solvers.WorkBudget(self.mstep_work) if constrained and self.mstep_work else None
             sol, states, u = self.blocks[m].solve(
                 data.W[:, m],
                 data.WZ[:, m],

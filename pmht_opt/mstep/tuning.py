@@ -21,9 +21,10 @@ Why each value (figures in docs/decisions.md sections 2 and 3):
   feasible constrained M-step of scenario A takes a few hundred): an infeasible one, which ADMM
   rarely certifies, then fails within seconds, and the infeasibility diagnosis names it before any
   retry; a feasible but hard one continues from its iterate with room for 50000 more iterations
-  (guaranteed visits take 5000-43000 on A, B, C). All the platforms of one constrained M-step share a
-  work budget (:data:`MSTEP_WORK`).
-* OSQP's work budget per constrained M-step: 2e9 (iterations times the QP's size,
+  (guaranteed visits take 5000-43000 on A, B, C). Each platform's solve in a constrained M-step has a
+  work budget of its own (:data:`MSTEP_WORK`): one shared by the platforms' threads would make the
+  answer depend on thread timing.
+* OSQP's work budget per platform in a constrained M-step: 2e9 (iterations times the QP's size,
   :class:`solvers.WorkBudget`), about 6 s of ADMM on this project's 2-core reference machine, so
   that an M-step OSQP cannot solve fails within seconds whatever the number of platforms (one
   platform with visits alone, a size of about 36k on A, may take 55000 iterations; with a speed
@@ -164,9 +165,9 @@ CONSTRAINED_RETRIES: dict[str, RetryChain] = {
     "osqp": RetryChain(({"max_iter": 50_000},)),
 }
 
-#: Work budget (:class:`solvers.WorkBudget`) shared by the platform solves of one M-step with constraint
-#: rows, per backend (backends not listed: none). ``solver_settings={"mstep_work_limit": ...}``
-#: overrides it (``None``: no budget).
+#: Work budget (:class:`solvers.WorkBudget`) of each platform's solve (with its retries) in an
+#: M-step with constraint rows, per backend (backends not listed: none).
+#: ``solver_settings={"mstep_work_limit": ...}`` overrides it (``None``: no budget).
 MSTEP_WORK: dict[str, float] = {"osqp": 2e9}
 
 #: Options of Clarabel inside cvxpy on unconstrained M-steps: the clarabel backend's tolerances (cvxpy
