@@ -168,7 +168,8 @@ def test_qgc_plans_follow_the_documented_format_and_the_paths(
             assert close.size, f"waypoint {w} is on no later point of platform {m}'s path"
             steps.append(after + int(close[0]))
             after = steps[-1] + 1
-        assert steps[0] == 0 and steps[-1] == path.shape[0] - 1
+        # From the start to where the path ends (it may get there early and wait: no waypoint then).
+        assert steps[0] == 0 and np.hypot(*(path[-1] - wp[-1])) < 1e-3
         assert point_polyline_distance(path, wp).max() <= tolerance + 1e-3
         # Every locale the platform is assigned has a waypoint at its nearest point of the path.
         for n in np.flatnonzero(result.assignment == m):
