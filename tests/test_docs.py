@@ -148,3 +148,34 @@ def test_every_part_of_the_package_is_documented_or_internal() -> None:
     assert not undecided, f"pmht_opt.{undecided}: give each a page in docs/api/ or list it in INTERNAL"
     assert not (documented & set(INTERNAL))
     assert not (set(INTERNAL) - parts), "INTERNAL names a part that no longer exists"
+
+
+def _python_blocks(path: Path) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", path.read_text(), re.S)
+
+
+@pytest.mark.parametrize("page", ["docs/solvers.md"])
+def test_the_python_examples_run_as_written(
+    page: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each page's Python blocks run in order, in a fresh namespace, writing into a scratch directory."""
+    blocks = _python_blocks(Path(__file__).resolve().parents[1] / page)
+    assert blocks, f"{page} has no python block"
+    monkeypatch.chdir(tmp_path)
+    namespace: dict[str, object] = {}
+    for block in blocks:
+        exec(compile(block, page, "exec"), namespace)
+
+
+def test_the_readme_library_example_covers_every_locale(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """What the README's comments promise of its example: full coverage, no violation, a figure."""
+    block = _python_blocks(Path(__file__).resolve().parents[1] / "README.md")[0]
+    monkeypatch.chdir(tmp_path)
+    namespace: dict[str, object] = {}
+    exec(compile(block, "README.md", "exec"), namespace)
+    result = namespace["result"]
+    assert isinstance(result, pmht_opt.PlanResult)
+    assert result.coverage(0.3) == 1.0 and result.max_violation <= 1e-6  # clarabel's tolerance
+    assert (tmp_path / "paths.png").stat().st_size > 0
