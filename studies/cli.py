@@ -24,6 +24,7 @@ import concurrent.futures as cf
 import contextlib
 import importlib
 import sys
+import tomllib
 import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -45,27 +46,13 @@ class Study(NamedTuple):
     text: str
 
 
+#: Where the studies are listed (name, module, one line of help), as data: ``pmht-opt --help`` reads
+#: it without importing them.
+REGISTRY = Path(__file__).resolve().parent / "registry.toml"
+
 #: The studies by their name on the command line.
 STUDIES: dict[str, Study] = {
-    "table1": Study("studies.table1", "the paper's Table 1 and Figures 1-5, with what the paper lacked"),
-    "solvers": Study("studies.compare_solvers", "M-step backends against the kalman reference: time, gaps"),
-    "scaling": Study("studies.scaling", "plan time and peak memory as locales, horizon and platforms grow"),
-    "anneal": Study("studies.anneal", "plain against annealed EM with both time-prior settings"),
-    "convergence": Study("studies.convergence", "when the EM can stop: stopping rules replayed on full runs"),
-    "guaranteed_visits": Study(
-        "studies.guaranteed_visits",
-        "VisitAll on the paper's scenarios: failures, coverage, excursions beyond the starts, time",
-    ),
-    "constraints_stress": Study(
-        "studies.constraints_stress",
-        "constraints from generous to infeasible on every backend: solved, named, verified",
-    ),
-    "coverage": Study(
-        "studies.coverage_study", "distance at equal coverage over sensor radii, Pareto fronts"
-    ),
-    "cetsp": Study(
-        "studies.cetsp", "the coverage planner on the Close-Enough TSP benchmark against the best published"
-    ),
+    name: Study(entry["module"], entry["text"]) for name, entry in tomllib.loads(REGISTRY.read_text()).items()
 }
 
 

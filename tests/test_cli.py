@@ -29,7 +29,7 @@ def test_scenario_then_plan_with_json(tmp_path: Path, capsys: pytest.CaptureFixt
     payload = json.loads(js.read_text())
     assert payload["metrics"]["solver"] == "osqp" and payload["metrics"]["iterations"] == 3
     assert len(payload["positions"]) == 3
-    assert "PMHT (osqp)" in capsys.readouterr().err  # the progress bar
+    assert "coverage (osqp)" in capsys.readouterr().err  # the progress bar of the default planner
 
 
 def test_bad_file_is_a_clean_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -174,7 +174,10 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path: Path, capsys: pytest.CaptureF
     assert "invalid choice: 'fast'" in capsys.readouterr().err
     assert main(["plan"]) == 2
     assert "give a mission file, or --example NAME" in capsys.readouterr().err
-    assert main(["plan", str(write(tmp_path, mission_text())), "--anneal", "0.001", "5"]) == 2
+    assert (
+        main(["plan", str(write(tmp_path, mission_text())), "--planner", "pmht", "--anneal", "0.001", "5"])
+        == 2
+    )
     assert "--anneal: anneal: the schedule starts at r = 0.001, not above" in capsys.readouterr().err
 
 
@@ -183,7 +186,7 @@ def test_version_and_help_show_the_defaults(capsys: pytest.CaptureFixture[str]) 
     assert capsys.readouterr().out.strip() == f"pmht-opt {po.__version__}"
     for command, shown in [
         ("demo", ["(default: A)", "(default: 0)", "(default: pmht-demo-SCENARIO.png)"]),
-        ("plan", ["else pmht)", "else the planner's own stop)", "else pyvrp)", "over 30 iterations)"]),
+        ("plan", ["else coverage)", "else the planner's own stop)", "else pyvrp)", "over 30 iterations)"]),
         ("order", ["else pyvrp)", "(default: the method's)"]),
         ("scenario", ["(default: 0)"]),
     ]:
@@ -439,3 +442,12 @@ def test_flight_options_from_the_mission_and_the_command_line(
     for m in range(2):
         items = json.loads((tmp_path / f"t-{m}.plan").read_text())["mission"]["items"]
         assert items[-1]["command"] == 20
+
+
+def test_help_lists_every_study(capsys: pytest.CaptureFixture[str]) -> None:
+    from studies.cli import STUDIES
+
+    assert main(["--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert all(name in text for name in STUDIES), text
+    assert len(STUDIES) >= 9

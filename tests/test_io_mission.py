@@ -60,6 +60,8 @@ TABLES = {
 
 def mission_text(*tables: tuple[str, str], planner: str = "") -> str:
     text = BASE + "".join(f'\n[[constraints]]\nkind = "{kind}"\n{body}\n' for kind, body in tables)
+    if planner and "method" not in planner and "kind" not in planner:
+        planner = f'method = "pmht"\n{planner}'  # these tests' planner settings are the PMHT planner's
     return text + (f"\n[planner]\n{planner}\n" if planner else "")
 
 
@@ -212,10 +214,14 @@ def test_an_anneal_below_r_is_refused_with_what_to_write() -> None:
     data = {"locales": [[0, 0], [100, 50]], "starts": [[0, 0]], "r": 25.0}
     assert mission_from_dict(data).planner.schedule().start_for(25.0) == 2500.0
     with pytest.raises(ConfigError, match=r"planner.anneal: the schedule starts at r = 1, not above"):
-        mission_from_dict({**data, "planner": {"anneal": {"start": 1.0, "iterations": 30}}})
-    ok = mission_from_dict({**data, "planner": {"anneal": {"start": 2500.0, "iterations": 30}}})
+        mission_from_dict({**data, "planner": {"method": "pmht", "anneal": {"start": 1.0, "iterations": 30}}})
+    ok = mission_from_dict(
+        {**data, "planner": {"method": "pmht", "anneal": {"start": 2500.0, "iterations": 30}}}
+    )
     assert ok.planner.schedule().start == 2500.0
-    assert mission_from_dict({**data, "planner": {"anneal": False}}).planner.schedule().empty
+    assert (
+        mission_from_dict({**data, "planner": {"method": "pmht", "anneal": False}}).planner.schedule().empty
+    )
 
 
 @pytest.mark.parametrize("suffix", [".toml", ".json"])
@@ -243,6 +249,7 @@ starts = [[-35.3632, 149.1652]]
 origin = [-35.3632, 149.1652]
 altitude = 45.0
 [planner]
+method = "pmht"
 anneal = { start = 40000.0, iterations = 10 }
 [[constraints]]
 kind = "circle_obstacle"
@@ -361,11 +368,13 @@ def test_the_example_mission_loads() -> None:
 
 
 def test_settings_defaults_are_the_librarys() -> None:
-    """A [planner] table without keys is the library's defaults: the PMHT planner's options and stop."""
+    """A [planner] table without keys is the library's defaults: the coverage planner (``plan``'s
+    default method), its options and stop."""
     s = PlannerSettings()
-    assert s.method == "pmht" and s.stop() is None and s.settings(()) == po.Settings()
-    assert po.PLANNERS["pmht"].options(s.planner_options()) == po.PLANNERS["pmht"].Options()
-    paper = read_settings("planner", {"paper": True}).planner_options()
+    assert s.method == "coverage" == inspect.signature(po.plan).parameters["method"].default
+    assert s.stop() is None and s.settings(()) == po.Settings()
+    assert po.PLANNERS["coverage"].options(s.planner_options()) == po.PLANNERS["coverage"].Options()
+    paper = read_settings("planner", {"method": "pmht", "paper": True}).planner_options()
     assert paper["update_time_prior"] and paper["anneal"].empty
 
 

@@ -503,7 +503,7 @@ def test_sigint_during_an_osqp_solve_exits_130_without_a_retry(tmp_path: Path) -
     mission = tmp_path / "m.toml"
     mission.write_text(
         "locales = [[1.0, 1.0], [3.0, 2.0]]\nstarts = [[0.0, 0.0]]\nhorizon = 300\n\n"
-        '[planner]\nsolver = "osqp"\n'
+        '[planner]\nmethod = "pmht"\nsolver = "osqp"\n'
         "iterations = 3\nanneal = false\n"
     )
     env = dict(os.environ)
@@ -557,7 +557,8 @@ def test_cli_outputs_and_inputs_are_checked_first(
         pytest.skip("needs /proc")
     mission = tmp_path / "m.toml"
     mission.write_text(
-        "locales = [[1.0, 1.0]]\nstarts = [[0.0, 0.0]]\nhorizon = 20\n[planner]\niterations = 2\n"
+        "locales = [[1.0, 1.0]]\nstarts = [[0.0, 0.0]]\nhorizon = 20\n"
+        '[planner]\nmethod = "pmht"\niterations = 2\n'
     )
     bad = tmp_path / "b.toml"
     bad.write_text("locales = [[1.0, 1.0]]\nstarts = [[0.0, 0.0]]\nhorizon = 1000000\n")
@@ -589,7 +590,8 @@ def test_cli_schedule_options_replace_a_files_unsuitable_schedule(
     mission = tmp_path / "m.toml"
     mission.write_text("locales = [[0.0, 0.0], [100.0, 50.0]]\nstarts = [[0.0, 0.0]]\nhorizon = 20\nr = 25.0")
     assert cli.main(["plan", str(mission), "--quiet", "--iterations", "2"]) == 0
-    mission.write_text(mission.read_text() + "\n[planner]\nanneal = { start = 1.0, iterations = 2 }")
+    planner = '\n[planner]\nmethod = "pmht"\nanneal = { start = 1.0, iterations = 2 }'
+    mission.write_text(mission.read_text() + planner)
     assert cli.main(["plan", str(mission), "--quiet", "--iterations", "2"]) == cli.EXIT_ERROR
     assert "planner.anneal: the schedule starts at r = 1, not above" in capsys.readouterr().err
     assert cli.main(["plan", str(mission), "--quiet", "--iterations", "2", "--no-anneal"]) == 0

@@ -7,9 +7,11 @@ Every command takes the parsed options and returns the exit status; errors are t
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import shutil
 import sys
+import tomllib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -235,6 +237,19 @@ def solvers(args: argparse.Namespace) -> int:
         state = "available" if name in installed else f"missing ({hint})"
         print(f"{name:<9} {state}")
     return 0
+
+
+def study_names() -> list[str]:
+    """The studies ``pmht-opt study`` runs, read from their registry (``studies/registry.toml``)
+    without importing them; empty where the studies are not installed or their registry is unreadable."""
+    try:
+        spec = importlib.util.find_spec("studies")  # finds the package; does not run it
+        if spec is None or spec.origin is None:
+            return []
+        registry = Path(spec.origin).parent / "registry.toml"
+        return list(tomllib.loads(registry.read_text()))
+    except (ImportError, OSError, ValueError):
+        return []
 
 
 def study(argv: Sequence[str]) -> int:

@@ -259,7 +259,8 @@ def build_parser() -> argparse.ArgumentParser:
     # own parser (and its imports) is reached only when a study runs.
     study = sub.add_parser(
         "study",
-        help="run one of the studies into a directory; pmht-opt study --help lists them",
+        help=f"run a study into a directory: {', '.join(commands.study_names()) or 'see'} "
+        "(pmht-opt study --help)",
         add_help=False,
     )
     study.add_argument("args", nargs=argparse.REMAINDER)

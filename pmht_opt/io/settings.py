@@ -33,10 +33,15 @@ from pmht_opt.stopping import MaxIterations, ObjectiveTolerance, StoppingCriteri
 
 #: The keys that belong to the mission, not to the planner's settings or options.
 MISSION_KEYS = ("method", "iterations", "tol", "paper", "return_to_base")
+
+
+def _mission_keys(method: str) -> tuple[str, ...]:
+    """The mission's own keys that ``method`` takes (``tol`` and ``paper`` are the PMHT planner's)."""
+    return MISSION_KEYS if method == "pmht" else tuple(k for k in MISSION_KEYS if k not in ("tol", "paper"))
 #: The shared settings a file can give (the constraints come from its ``[[constraints]]``).
 SHARED = tuple(f for f in SETTINGS_FIELDS if f != "constraints")
 #: The default planner of a mission.
-DEFAULT_METHOD = "pmht"
+DEFAULT_METHOD = "coverage"
 
 
 @dataclass
@@ -234,7 +239,7 @@ def read_settings(where: str, data: Any) -> PlannerSettings:
     if unknown:
         raise ConfigError(
             f"{where}.{unknown[0]}: not a setting of the {method!r} planner; it takes "
-            f"{', '.join((*MISSION_KEYS, *SHARED, *names))}."
+            f"{', '.join(dict.fromkeys((*_mission_keys(method), *SHARED, *names)))}."
         )
     try:
         return PlannerSettings(method=method, shared=shared, options=values, **mission)
