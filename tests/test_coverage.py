@@ -3,6 +3,8 @@ deterministic, independent of the horizon and of the units, bad input named."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -42,6 +44,18 @@ def distance_to_paths(locales: np.ndarray, positions: np.ndarray) -> np.ndarray:
     return best
 
 
+#: A short tour search, for tests of what the planner promises rather than of how short its tours are.
+QUICK = {"order_iterations": 300, "iterations": 20, "patience": 10}
+
+
+def cover(
+    sc: po.Scenario, radius: Any = None, constraints: tuple = (), threads: int = 1, seed: int = 0
+) -> po.PlanResult:
+    """The coverage planner with a short search."""
+    settings = po.Settings(threads=threads, constraints=constraints, seed=seed)
+    return po.plan(sc, "coverage", settings=settings, radius=radius, search=QUICK)
+
+
 def assert_covers(result: po.PlanResult, radius: float) -> None:
     dist = distance_to_paths(result.scenario.locales, result.positions)
     assert np.all(dist <= radius * (1 + 1e-6)), f"missed: {np.flatnonzero(dist > radius * (1 + 1e-6))}"
@@ -51,7 +65,7 @@ def assert_covers(result: po.PlanResult, radius: float) -> None:
 @pytest.mark.parametrize("kind", ["A", "B", "C"])
 def test_every_locale_within_the_radius(kind: str, radius: float) -> None:
     sc = small_scenario(kind, seed=1)
-    res = po.plan_coverage(sc, radius, po.PMHTConfig(threads=1))
+    res = cover(sc, radius)
     assert_covers(res, radius)
     assert res.coverage(radius) == 1.0 and res.planner == "coverage"
     assert res.positions.shape == (sc.n_platforms, sc.horizon + 1, 2)
@@ -76,7 +90,7 @@ def assert_covers_lines(locales: np.ndarray, lines: list[np.ndarray], radius: fl
 def test_each_locale_its_own_radius() -> None:
     sc = small_scenario("C", seed=2)
     radii = np.linspace(0.05, 0.5, sc.n_locales)
-    res = po.plan(sc.replace(coverage_radius=radii), "coverage", settings=po.Settings(threads=1))
+    res = cover(sc.replace(coverage_radius=radii))
     dist = distance_to_paths(sc.locales, res.positions)
     assert np.all(dist <= radii * (1 + 1e-6))
     assert res.coverage() == 1.0
@@ -84,7 +98,7 @@ def test_each_locale_its_own_radius() -> None:
 
 def test_default_radius_is_the_scenarios() -> None:
     sc = small_scenario("B", seed=2).replace(coverage_radius=0.25)
-    res = po.plan_coverage(sc, config=po.PMHTConfig(threads=1))
+    res = cover(sc)
     assert_covers(res, 0.25)
 
 
@@ -101,8 +115,7 @@ def test_user_constraints_hold() -> None:
     locales = sc.locales[np.linalg.norm(sc.locales - 2.0, axis=1) > 0.9]  # every disc reachable
     sc = sc.replace(locales=locales)
     vmax = 0.1
-    cfg = po.PMHTConfig(threads=1, constraints=[po.SpeedLimit(vmax), obstacle])
-    res = po.plan_coverage(sc, 0.3, cfg)
+    res = cover(sc, 0.3, (po.SpeedLimit(vmax), obstacle))
     assert_covers(res, 0.3)
     speed = np.linalg.norm(res.states[:, :, [1, 4]], axis=2)
     assert speed.max() <= vmax * (1 + 1e-6)
@@ -131,8 +144,8 @@ def test_a_return_to_base_is_flown_as_a_closed_tour() -> None:
 
 def test_same_seed_same_plan() -> None:
     sc = small_scenario("C", seed=6)
-    a = po.plan_coverage(sc, 0.3, po.PMHTConfig(threads=1), seed=3)
-    b = po.plan_coverage(sc, 0.3, po.PMHTConfig(threads=2), seed=3)
+    a = cover(sc, 0.3, threads=1, seed=3)
+    b = cover(sc, 0.3, threads=2, seed=3)
     np.testing.assert_array_equal(a.states, b.states)
 
 
@@ -140,11 +153,11 @@ def test_the_plan_does_not_depend_on_the_units() -> None:
     """The same scenario in other units (coordinates and radii scaled by s): the same tour, scaled,
     and the same flight to the M-step's accuracy."""
     sc = small_scenario("B", seed=8)
-    base = po.plan(sc, "coverage", settings=po.Settings(threads=1), radius=0.3)
+    base = cover(sc, 0.3)
     for s in (0.01, 100.0):
         box = tuple(np.multiply(sc.bounds, s))
         big = sc.replace(locales=sc.locales * s, starts=sc.start_positions * s, bounds=box)
-        res = po.plan(big, "coverage", settings=po.Settings(threads=1), radius=0.3 * s)
+        res = cover(big, 0.3 * s)
         assert res.extras["tour_length"] == pytest.approx(s * base.extras["tour_length"], rel=1e-9)
         # The flight to the interior point's accuracy on constrained M-steps (hard rows 1e-5 inside).
         np.testing.assert_allclose(res.positions / s, base.positions, rtol=0, atol=1e-4)
@@ -154,10 +167,7 @@ def test_the_plan_does_not_depend_on_the_units() -> None:
 def test_the_plan_does_not_depend_on_the_horizon() -> None:
     """The same tour flown over 200, 400 and 800 steps: the same length within half a percent."""
     sc = small_scenario("C", seed=9)
-    lengths = [
-        po.plan(sc.replace(horizon=T), "coverage", settings=po.Settings(threads=1), radius=0.3).total_distance
-        for T in (200, 400, 800)
-    ]
+    lengths = [cover(sc.replace(horizon=T), 0.3).total_distance for T in (200, 400, 800)]
     assert max(lengths) <= min(lengths) * 1.005
 
 
@@ -221,9 +231,6 @@ def test_a_plan_that_fails_the_check_is_never_returned(monkeypatch: pytest.Monke
 
 
 #: A short tour search: these tests are about the speed limit's caps, not the search's quality.
-QUICK = {"order_iterations": 300, "iterations": 20, "patience": 10}
-
-
 def test_the_speed_limit_caps_each_route_and_keeps_the_objective() -> None:
     # Scenario B, seed 0: the shortest routes in total send one platform round every locale (9.95);
     # at 0.08 a platform can fly 8.89 in the horizon, so the work is shared, the total still shortest.

@@ -113,7 +113,7 @@ def test_osqp_constrained_solves_stop_at_their_work_limit(scenario_a: po.Scenari
     assert sum(len(block._qps) for block in mstep.blocks) == 1
 
 
-def test_the_platforms_of_a_constrained_osqp_mstep_share_its_work_budget(scenario_a: po.Scenario) -> None:
+def test_a_constrained_osqp_mstep_stops_within_its_work_budget(scenario_a: po.Scenario) -> None:
     data = random_weights(scenario_a, np.random.default_rng(5), 0.5)
     free = po.solve_mstep(scenario_a, data.W, data.WZ, data.r)
     vmax = 0.5 * float(np.max(np.hypot(free[:, 1:, 1], free[:, 1:, 4])))
