@@ -255,3 +255,22 @@ def test_routes_the_search_cannot_fit_in_the_horizon_say_what_to_change() -> Non
         po.plan(sc, "coverage", settings=settings, radius=0.3, search=QUICK)
     assert not isinstance(caught.value, po.InfeasibleError)
     assert "does not prove" in str(caught.value)
+
+
+def test_two_discs_that_share_no_point_are_never_asked_of_one_point() -> None:
+    """Both discs are nearest to the same sample of the path (the segment before it at fraction 1, the
+    one after at 0): one point cannot lie in both, so the later one takes another point of the path."""
+    from pmht_opt.planners.coverage.discs import VisitDiscs
+
+    T = 10
+    positions = np.zeros((1, T + 1, 2))
+    positions[0, :, 0] = np.arange(T + 1, dtype=float)  # along the x axis, one unit a step
+    centres = np.array([[5.0, 0.8], [5.0, -0.8]])  # both nearest to the sample at x = 5
+    discs = VisitDiscs(np.zeros(2, dtype=int), np.array([5, 5]), centres, np.array([0.5, 0.5]), window=2)
+    steps, alpha = discs.visit_points(positions, T)
+    places = steps + alpha
+    assert places[0] == 5.0 and places[1] == 5.5
+    # Discs that do share a point keep the nearest point, shared.
+    near = VisitDiscs(np.zeros(2, dtype=int), np.array([5, 5]), centres, np.array([1.0, 1.0]), window=2)
+    steps, alpha = near.visit_points(positions, T)
+    assert np.all(steps + alpha == 5.0)

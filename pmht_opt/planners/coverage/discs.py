@@ -65,11 +65,12 @@ class VisitDiscs(Constraint):
         within the window of its nominal step nearest to it, as the segment after a step
         (``1..T``; the last step's segment is the point itself) and a fraction of it."""
         N = self.platform.shape[0]
+        window = self.window
         steps = np.empty(N, dtype=int)
         alpha = np.zeros(N)
         for n in range(N):
             m, t0 = int(self.platform[n]), int(self.times[n])
-            lo, hi = max(1, t0 - self.window), min(T, t0 + self.window)
+            lo, hi = max(1, t0 - window), min(T, t0 + window)
             a = positions[m, lo : hi + 1]  # segment starts, steps lo..hi
             b = positions[m, np.minimum(np.arange(lo, hi + 1) + 1, T)]
             d = b - a
@@ -79,7 +80,26 @@ class VisitDiscs(Constraint):
             gap = np.hypot(*(a + u[:, None] * d - self.centres[n]).T)
             j = int(np.argmin(gap))
             steps[n], alpha[n] = lo + j, u[j] if lo + j < T else 0.0
-        return steps, alpha
+        return self._apart(steps, alpha, T)
+
+    def _apart(self, steps: np.ndarray, alpha: np.ndarray, T: int) -> tuple[np.ndarray, np.ndarray]:
+        """The chosen points moved apart where two discs that share no point got the same point of a
+        path (both nearest to one sample: ``alpha`` clipped to 1 on one segment, to 0 on the next, or
+        equal): no point lies in both, so that choice alone would make the M-step infeasible. The later
+        disc in route order takes the middle of the next half segment instead."""
+        at = np.minimum(steps + alpha, T)  # the point's place along the path: t + alpha
+        for m in np.unique(self.platform):
+            mine = np.flatnonzero(self.platform == m)
+            mine = mine[np.lexsort((at[mine], self.times[mine]))]  # route order
+            for i, n in enumerate(mine):
+                for k in mine[:i]:
+                    if abs(at[k] - at[n]) > 1e-12:
+                        continue
+                    if np.hypot(*(self.centres[n] - self.centres[k])) > self.radii[n] + self.radii[k]:
+                        at[n] = at[k] + 0.5 if at[k] + 0.5 <= T else at[k] - 0.5
+                        break
+        steps = np.clip(np.floor(at).astype(int), 1, T)
+        return steps, np.where(steps < T, at - steps, 0.0)
 
     def blocks(self, ctx: ConstraintContext) -> list[Block]:
         T = ctx.scenario.horizon

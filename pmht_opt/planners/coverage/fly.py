@@ -13,15 +13,16 @@ checks each answer against the exact smoother; the returned plan is verified on 
 
 from __future__ import annotations
 
+import copy
 import time
 
 import numpy as np
 
-from pmht_opt.constraints.base import ConstraintContext
+from pmht_opt.constraints.base import Constraint, ConstraintContext
 from pmht_opt.exceptions import InfeasibleError, SolverError
 from pmht_opt.geometry import missed_locales
 from pmht_opt.model import POS, VEL
-from pmht_opt.mstep import MStepData, make_mstep, mstep_objective
+from pmht_opt.mstep import MStepData, MStepOutput, make_mstep, mstep_objective
 from pmht_opt.parallel import usable_cores
 from pmht_opt.planners.coverage.discs import VisitDiscs
 from pmht_opt.planners.coverage.flight import SmoothingModel, SpeedProfile, smoothing_model, visit_steps
@@ -148,7 +149,13 @@ def fly(
         for it in range(1, iterations + 1):
             ctx = ConstraintContext(scenario=flown, states=states, iteration=it)
             start = time.perf_counter()
-            out = mstep.solve(MStepData(W=W, WZ=WZ, r=model.r, ctx=ctx, active=active))
+            data = MStepData(W=W, WZ=WZ, r=model.r, ctx=ctx, active=active)
+            try:
+                out = mstep.solve(data)
+            except SolverError:
+                if it > 1 or iterations < 2:
+                    raise  # later iterations start from a path that meets their points
+                out = _soft_start(flown, settings, constraints, threads, data)
             times.append(time.perf_counter() - start)
             states = out.states
             objectives.append(_objective(flown, states, W, WZ, model))
@@ -214,6 +221,29 @@ def fly(
             "smoothing": {"factor": smoothing, "q": model.q, "r": model.r, "weights": model.weights.tolist()},
         },
     )
+
+
+def _soft_start(
+    flown: Scenario, settings: Settings, constraints: tuple[Constraint, ...], threads: int, data: MStepData
+) -> MStepOutput:
+    """The first M-step again with the discs soft (an exact L1 penalty on how far each misses).
+
+    The first iteration's points come from the motion along the tour, whose chords can lie nearest to
+    many discs at once where the tour winds through densely overlapping ones: points at fixed
+    fractions of one segment then cannot always lie in all of them, and the hard M-step fails. Its
+    soft version always has an answer, a path that meets the discs where it can; the next iteration
+    imposes them hard again at that path's nearest points, and only hard answers are returned.
+    """
+    *user, discs = constraints
+    soft = copy.copy(discs)
+    soft.soft = True
+    mstep = make_mstep(
+        flown, settings.solver, settings.solver_settings, settings.accept_inaccurate, threads, (*user, soft)
+    )
+    try:
+        return mstep.solve(data)
+    finally:
+        mstep.close()
 
 
 def _measurements(track: Track, model: SmoothingModel, T: int) -> tuple[np.ndarray, np.ndarray]:
