@@ -386,6 +386,8 @@ def test_the_cli_plans_or_exits_2_with_one_line(
             "plan",
             str(path),
             "--quiet",
+            "--planner",
+            "pmht",
             "--no-anneal",
             "--iterations",
             str(iterations),
