@@ -96,3 +96,14 @@ def test_a_foreign_package_named_solvers_is_named_not_used(tmp_path: Path) -> No
     )
     assert done.returncode != 0
     assert "is not pmht-opt's generic QP layer" in done.stderr and str(tmp_path) in done.stderr
+
+
+def test_no_module_of_the_library_is_over_450_lines() -> None:
+    root = Path(__file__).resolve().parents[1]
+    long = {
+        str(p.relative_to(root)): n
+        for package in ("pmht_opt", "solvers")
+        for p in (root / package).rglob("*.py")
+        if (n := len(p.read_text().splitlines())) > 450
+    }
+    assert not long, long
