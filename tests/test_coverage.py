@@ -274,21 +274,3 @@ def test_two_discs_that_share_no_point_are_never_asked_of_one_point() -> None:
     near = VisitDiscs(np.zeros(2, dtype=int), np.array([5, 5]), centres, np.array([1.0, 1.0]), window=2)
     steps, alpha = near.visit_points(positions, T)
     assert np.all(steps + alpha == 5.0)
-
-
-def test_discs_are_imposed_inside_their_radius_and_measured_at_it() -> None:
-    """The rows hold a disc at 1 - margin of its radius (room for an interior point's error); its
-    report measures the radius itself, so a path exactly on the circle meets it."""
-    from pmht_opt.constraints.base import ConstraintContext
-    from pmht_opt.planners.coverage.discs import VisitDiscs
-
-    sc = po.Scenario(locales=np.array([[2.0, 0.5]]), starts=np.zeros((1, 2)), horizon=4)
-    discs = VisitDiscs(np.zeros(1, dtype=int), np.array([2]), sc.locales, np.array([0.5]), margin=1e-4)
-    states = np.repeat(sc.initial_states[:, None, :], 5, axis=1)
-    states[0, :, 0] = np.arange(5.0)  # along y = 0: the disc's centre is 0.5 above, on the circle
-    ctx = ConstraintContext(scenario=sc, states=states, iteration=1)
-    (block,) = discs.blocks(ctx)
-    assert block.h[0] == pytest.approx(0.5 * (1 - 1e-4), rel=1e-15)
-    report = discs.violation(states, ctx)
-    assert report.max_violation <= 1e-15 and report.details["visits_met"] == 1
-    assert discs.margin == 1e-4

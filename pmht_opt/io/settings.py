@@ -38,6 +38,8 @@ MISSION_KEYS = ("method", "iterations", "tol", "paper", "return_to_base")
 def _mission_keys(method: str) -> tuple[str, ...]:
     """The mission's own keys that ``method`` takes (``tol`` and ``paper`` are the PMHT planner's)."""
     return MISSION_KEYS if method == "pmht" else tuple(k for k in MISSION_KEYS if k not in ("tol", "paper"))
+
+
 #: The shared settings a file can give (the constraints come from its ``[[constraints]]``).
 SHARED = tuple(f for f in SETTINGS_FIELDS if f != "constraints")
 #: The default planner of a mission.

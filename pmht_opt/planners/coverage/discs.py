@@ -44,7 +44,6 @@ class VisitDiscs(Constraint):
         centres: np.ndarray,
         radii: np.ndarray,
         window: int = 0,
-        margin: float = 0.0,
     ) -> None:
         super().__init__()
         self.platform = np.asarray(platform, dtype=int)
@@ -52,8 +51,6 @@ class VisitDiscs(Constraint):
         self.centres = np.asarray(centres, dtype=float)
         self.radii = np.broadcast_to(np.asarray(radii, dtype=float), self.platform.shape)
         self.window = int(window)
-        #: The rows hold each disc at ``1 - margin`` of its radius; reports measure the radius itself.
-        self.margin = float(margin)
 
     @property
     def name(self) -> str:
@@ -112,8 +109,7 @@ class VisitDiscs(Constraint):
             mine = np.flatnonzero(self.platform == m)
             if mine.size == 0:
                 continue
-            radii = self.radii[mine] * (1.0 - self.margin)
-            blk = _segment_discs(m, T, steps[mine], alpha[mine], self.centres[mine], radii)
+            blk = _segment_discs(m, T, steps[mine], alpha[mine], self.centres[mine], self.radii[mine])
             blk.labels = [f"locale {n}" for n in mine.tolist()]
             nominal = self.times[mine]
             blk.span = np.column_stack(
@@ -123,11 +119,7 @@ class VisitDiscs(Constraint):
         return out
 
     def violation(self, states: np.ndarray, ctx: ConstraintContext) -> ConstraintReport:
-        margin, self.margin = self.margin, 0.0  # measured against the discs themselves
-        try:
-            report = super().violation(states, ctx)
-        finally:
-            self.margin = margin
+        report = super().violation(states, ctx)
         T = ctx.scenario.horizon
         pos = states[:, :, POS]
         steps, alpha = self.visit_points(pos, T)

@@ -35,13 +35,6 @@ from pmht_opt.verify import verify_plan
 
 #: How close (relative to the tour's size) a visit point lies to the segment it is placed on.
 ON_POLYLINE = 1e-9
-#: Each disc is imposed at ``1 - DISC_MARGIN`` of its radius (and checked at its radius). An interior
-#: point meets its rows to a tolerance relative to the whole problem, whose positions span the area: for
-#: a disc small against the area (radius 0.1 in a 10 x 10 box, met where the platform is still speeding
-#: up) the answer missed its row by 1.6e-5 of the radius, past the 1e-5 the M-step backs every hard cone
-#: off by, and the plan failed its check by 6e-7. The margin costs at most 1e-4 of a radius of length
-#: per disc.
-DISC_MARGIN = 1e-4
 #: A locale's disc may be met up to ``T // WINDOW_FRACTION`` steps from where the tour meets it.
 WINDOW_FRACTION = 25
 
@@ -142,9 +135,7 @@ def fly(
     model = smoothing_model(speeds, scenario.dt, scenario.radii, smoothing)
     flown = scenario.replace(q=model.q, r=model.r)
     window = max(1, T // WINDOW_FRACTION)
-    discs = VisitDiscs(
-        track.platform, track.visit_time, scenario.locales, scenario.radii, window, margin=DISC_MARGIN
-    )
+    discs = VisitDiscs(track.platform, track.visit_time, scenario.locales, scenario.radii, window)
     constraints = (*settings.constraints, discs)
     W, WZ = _measurements(track, model, T)
     states = track.initial_states(scenario)
