@@ -117,7 +117,8 @@ def diagnose(
     if proof is not None:
         message = f"{sol.backend}: {proof}. Relax them or pass soft=True."
         return InfeasibleError(message, sol.backend, sol.raw_status)
-    chosen = sorted({i.name for i in rows.items if not i.soft and not i.exact})
+    # The rows the planner placed (soft ones too: a soft start's discs are its choice as well).
+    chosen = sorted({i.name for i in rows.items if not i.exact})
     return ScheduleError(
         f"{sol.backend}: {where} where this iteration imposes them (the steps of {', '.join(chosen)}, chosen "
         f"by the planner); the least relaxation needs {_parts(platform, culprits)}. The constraints "
