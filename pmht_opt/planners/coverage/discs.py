@@ -21,6 +21,8 @@ further), so once one iteration is feasible every later one is.
 
 from __future__ import annotations
 
+import bisect
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -28,6 +30,9 @@ from pmht_opt.constraints.base import Constraint, ConstraintContext, ConstraintR
 from pmht_opt.constraints.blocks import Block
 from pmht_opt.model import POS, PX, PY, STATE_DIM
 from pmht_opt.scenario import describe_radius
+
+#: Two points of a path closer than this (in steps) are the same point.
+SAME_PLACE = 1e-12
 
 
 class VisitDiscs(Constraint):
@@ -90,14 +95,18 @@ class VisitDiscs(Constraint):
         at = np.minimum(steps + alpha, T)  # the point's place along the path: t + alpha
         for m in np.unique(self.platform):
             mine = np.flatnonzero(self.platform == m)
+            if np.all(np.diff(np.sort(at[mine])) > SAME_PLACE):
+                continue  # no two of the platform's points coincide: nothing to move
             mine = mine[np.lexsort((at[mine], self.times[mine]))]  # route order
-            for i, n in enumerate(mine):
-                for k in mine[:i]:
-                    if abs(at[k] - at[n]) > 1e-12:
-                        continue
+            placed: list[tuple[float, int, int]] = []  # (place, rank in route order, disc), sorted
+            for rank, n in enumerate(mine):
+                lo = bisect.bisect_left(placed, (at[n] - SAME_PLACE, -1, -1))
+                hi = bisect.bisect_right(placed, (at[n] + SAME_PLACE, len(mine), len(mine)))
+                for _, _, k in sorted(placed[lo:hi], key=lambda p: p[1]):  # earlier discs in route order
                     if np.hypot(*(self.centres[n] - self.centres[k])) > self.radii[n] + self.radii[k]:
                         at[n] = at[k] + 0.5 if at[k] + 0.5 <= T else at[k] - 0.5
                         break
+                bisect.insort(placed, (float(at[n]), rank, int(n)))
         steps = np.clip(np.floor(at).astype(int), 1, T)
         return steps, np.where(steps < T, at - steps, 0.0)
 
