@@ -65,6 +65,12 @@ class VisitDiscs(Constraint):
         """The smallest radius: violations are judged relative to it."""
         return float(np.min(self.radii)) if self.radii.size else 1.0
 
+    def tightened(self, fraction: float) -> VisitDiscs:
+        """The same discs, each imposed ``fraction`` of its radius inside it."""
+        out = VisitDiscs(self.platform, self.times, self.centres, self.radii * (1.0 - fraction), self.window)
+        out.soft = self.soft
+        return out
+
     def visit_points(self, positions: np.ndarray, T: int) -> tuple[np.ndarray, np.ndarray]:
         """``(steps (N,), alpha (N,))``: for each locale, the point of ``positions (M, T+1, 2)``
         within the window of its nominal step nearest to it, as the segment after a step

@@ -122,26 +122,69 @@ def smoothing_model(speeds: np.ndarray, dt: float, radii: np.ndarray, smoothing:
     return SmoothingModel(q=q, r=r, weights=weights)
 
 
-def visit_steps(t_real: np.ndarray, T: int, apart: np.ndarray) -> np.ndarray:
-    """Steps ``1..T`` nearest to the times ``t_real`` (ascending) at which the visit points are reached.
+def visit_times(t_real: np.ndarray, T: int, apart: np.ndarray) -> np.ndarray:
+    r"""Times in ``[1, T]`` for the visit points, as near as can be to the times ``t_real`` (ascending)
+    at which the flight reaches them, with distinct points a step or more apart.
 
-    Kept in order, and one step apart where ``apart[k]`` (visit point ``k`` differs from ``k - 1``):
-    two discs that no one point meets cannot share a step. Raises ``ConfigError`` when the horizon has
-    fewer steps than the route has distinct visit points.
+    Each disc is imposed at a step of its own (two discs that no one point meets cannot share one),
+    so where the tour's turn points crowd (a cluster of small discs, or many turn points for few steps)
+    the times the constant-speed flight gives them cannot all be kept. The times kept are the least
+    squares fit under the spacing,
+
+    .. math::
+
+        \min_{\tau'} \sum_k (\tau'_k - \tau_k)^2 \quad \text{s.t.} \quad
+        \tau'_k \ge \tau'_{k-1} + g_k, \quad 1 \le \tau'_k \le T,
+
+    with :math:`g_k = 1` where point :math:`k` differs from point :math:`k - 1` (``apart``), else 0:
+    with :math:`u_k = \tau_k - G_k` (:math:`G_k` the gaps summed) it is the isotonic regression of
+    :math:`u`, solved exactly by pooling adjacent violators, then clipped to the bounds. Where the
+    flight's times already leave a step between distinct points it returns them unchanged. The flight is
+    then retimed to pass each point at its new time (:func:`retime`), so the measurements and the
+    discs agree on when each disc is met. Raises ``ConfigError`` when the horizon has fewer steps than
+    the route has distinct visit points.
     """
-    t = np.clip(np.rint(t_real).astype(int), 1, T)
-    gap = apart.astype(int)
-    if gap.size:
-        gap[0] = 0
-    for k in range(1, t.size):
-        t[k] = max(t[k], t[k - 1] + gap[k])
-    if t.size:
-        t[-1] = min(t[-1], T)
-    for k in range(t.size - 2, -1, -1):
-        t[k] = min(t[k], t[k + 1] - gap[k + 1])
-    if t.size and t[0] < 1:
+    t = np.asarray(t_real, dtype=float)
+    if t.size == 0:
+        return t.copy()
+    gap = apart.astype(float)
+    gap[0] = 0.0
+    G = np.cumsum(gap)
+    if G[-1] + 1 > T:
         raise ConfigError(
-            f"horizon: {T} steps cannot hold a route with {int(gap.sum()) + 1} distinct visits; "
+            f"horizon: {T} steps cannot hold a route with {int(G[-1]) + 1} distinct visits; "
             "lengthen the horizon."
         )
-    return t
+    u = _isotonic(t - G)
+    u = np.clip(u, 1.0, T - G[-1])
+    return u + G
+
+
+def _isotonic(y: np.ndarray) -> np.ndarray:
+    """The non-decreasing sequence nearest ``y`` in least squares (pool adjacent violators)."""
+    means: list[float] = []
+    sizes: list[int] = []
+    for v in y.tolist():
+        mean, size = v, 1
+        while means and means[-1] > mean:
+            m, n = means.pop(), sizes.pop()
+            mean, size = (m * n + mean * size) / (n + size), n + size
+        means.append(mean)
+        sizes.append(size)
+    return np.repeat(np.array(means), np.array(sizes))
+
+
+def visit_steps(times: np.ndarray, T: int) -> np.ndarray:
+    """The steps ``1..T`` of visit times from :func:`visit_times`: rounded half up, which keeps times a
+    step apart on distinct steps."""
+    return np.clip(np.floor(np.asarray(times) + 0.5).astype(int), 1, T)
+
+
+def retime(t: np.ndarray, before: np.ndarray, after: np.ndarray, steps: int) -> np.ndarray:
+    """The times of the original flight at which the retimed one is at times ``t``: the retiming is
+    piecewise linear, through each visit's time ``before`` (ascending) and its new time ``after``,
+    and keeps the start and the end."""
+    knots_new = np.concatenate([[0.0], after, [float(steps)]])
+    knots_old = np.concatenate([[0.0], before, [float(steps)]])
+    keep = np.concatenate([[True], np.diff(knots_new) > 0])
+    return np.interp(t, knots_new[keep], knots_old[keep])
