@@ -69,9 +69,15 @@ def provenance() -> dict[str, Any]:
     """Commit, dirty flag, package versions, Python, machine, CPU count, load average, date and command.
 
     ``commit`` and ``dirty`` are ``None`` outside a git checkout (an installed copy of the studies).
+    ``dirty`` says whether tracked files other than the committed results (``studies/results/``, which
+    a running study rewrites) differ from the commit: whether the code that ran is the commit's.
     """
     commit = _git("rev-parse", "HEAD")
-    status = _git("status", "--porcelain", "--untracked-files=no") if commit else None
+    status = (
+        _git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)studies/results")
+        if commit
+        else None
+    )
     return {
         "commit": commit or None,
         "dirty": None if status is None else bool(status),
