@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ from pmht_opt.tours import (
     plan_tours,
     read_mennell,
 )
+from pmht_opt.tours.engine import start_seed
 from pmht_opt.tours.socp import disc_sequence
 
 FAST = TourSettings(order_iterations=200, iterations=20, patience=10)
@@ -99,6 +101,26 @@ def test_units_do_not_matter(factor: float) -> None:
     np.testing.assert_allclose(scaled.lengths, base.lengths * factor, rtol=1e-9)
 
 
+def test_more_starts_search_at_least_as_well_and_stay_deterministic() -> None:
+    problem = _random(5, n=30, m=2, closed=False)
+    one = plan_tours(problem, FAST)
+    three = plan_tours(problem, replace(FAST, starts=3))
+    # The first of the starts is the one-start search itself, and the best start's tour is kept.
+    assert three.info["stages"]["search"] <= one.info["stages"]["search"]
+    assert three.info["iterations"] > one.info["iterations"]
+    again = plan_tours(problem, replace(FAST, starts=3))
+    assert [r.tolist() for r in again.routes] == [r.tolist() for r in three.routes]
+    assert np.array_equal(again.points, three.points)
+
+
+def test_start_seeds_are_the_seed_then_drawn_from_it() -> None:
+    assert start_seed(42, 0) == 42
+    seeds = [start_seed(42, k) for k in range(1, 6)]
+    assert len(set(seeds)) == 5 and all(0 <= s < 2**32 for s in seeds)
+    assert seeds == [start_seed(42, k) for k in range(1, 6)]
+    assert start_seed(43, 1) != start_seed(42, 1)
+
+
 def test_callback_and_stop_see_progress() -> None:
     seen: list[Progress] = []
     tours = plan_tours(_random(2), FAST, callback=seen.append, stop=lambda p: p.iteration >= 3)
@@ -122,6 +144,8 @@ def test_bad_input_names_the_field() -> None:
         TourSettings(seed=-1)
     with pytest.raises(ConfigError, match="iterations"):
         TourSettings(iterations=1.5)  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match="starts"):
+        TourSettings(starts=0)
 
 
 def test_check_refuses_a_wrong_tour() -> None:

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
@@ -57,7 +58,7 @@ from pmht_opt.tours.geometry import Frame, unit_frame
 from pmht_opt.tours.local import relocate_pass, repair, ruin, two_opt_pass
 from pmht_opt.tours.ordering import order_points, order_points_minmax
 from pmht_opt.tours.polish import place, refine, solve_keys, thin
-from pmht_opt.tours.problem import DiscProblem, DiscTours, Progress, TourSettings
+from pmht_opt.tours.problem import SEED_MAX, DiscProblem, DiscTours, Progress, TourSettings
 from pmht_opt.tours.tour import Layout, Tour
 from pmht_opt.tours.verify import check_tours
 
@@ -129,6 +130,15 @@ def descend(tour: Tour, settings: TourSettings, focus: np.ndarray | None = None,
             return tour
         focus = _near(tour, moved)
     return tour
+
+
+def start_seed(seed: int, k: int) -> int:
+    """The seed of start ``k`` of a search seeded ``seed``: ``seed`` itself for the first (one start
+    is the search of that seed), then seeds drawn from ``numpy.random.SeedSequence([seed, k])``."""
+    if k == 0:
+        return seed
+    state = np.random.SeedSequence([seed, k]).generate_state(1, dtype=np.uint64)[0]
+    return int(state % np.uint64(SEED_MAX + 1))
 
 
 def initial_tour(layout: Layout, settings: TourSettings) -> Tour:
@@ -247,49 +257,69 @@ def plan_tours(
         radii=frame.length_to_unit(problem.radii),
         caps=unit_caps(problem, frame),
     )
-    rng = np.random.default_rng(settings.seed)
     objective = settings.objective
-    first = initial_tour(layout, settings)
-    stages = {"centres": first.score(objective)[1] * frame.side}
-    polished = refine(first, objective)
-    stages["cone"] = polished.score(objective)[1] * frame.side
-    best = descend(polished, settings)  # (works in place)
-    best_score = best.score(objective)
-    stages["descent"] = best_score[1] * frame.side
-    current, current_score = best, best_score
-    scores = [best_score[1] * frame.side]
-    settled = 0
-    it = 0
+    scores: list[float] = []
+    stages: dict[str, float] = {}
+    state = {"it": 0, "settled": 0}
+    best: Tour | None = None
+    best_score: tuple[float, float, float] | None = None
 
     def report() -> bool:
-        progress = Progress(it, tuple(scores), time.perf_counter() - t0, settled)
+        progress = Progress(state["it"], tuple(scores), time.perf_counter() - t0, state["settled"])
         if callback is not None:
             callback(progress)
         return stop is not None and bool(stop(progress))
 
-    halt = report()
+    halt = False
     n_keys_max = max(1, problem.n_targets)
-    while not halt and it < settings.iterations and settled < settings.patience and problem.n_targets:
-        it += 1
-        cand = current.copy()
-        size = int(rng.integers(settings.ruin_min, settings.ruin_max + 1))
-        removed = ruin(cand, rng, min(size, n_keys_max))
-        inserted = repair(cand, rng, objective)
-        cand = descend(cand, settings, _near(cand, np.vstack([removed, inserted])))
-        cand_score = cand.score(objective)
-        if better(cand_score, best_score):
-            best, best_score, settled = cand, cand_score, 0
-            current, current_score = cand, cand_score
-        else:
-            settled += 1
-            threshold = settings.accept * (1 - it / max(settings.iterations, 1))
-            if within(cand_score, best_score, threshold):  # record-to-record travel
-                current, current_score = cand, cand_score
-            elif not within(current_score, best_score, threshold):
-                current, current_score = best, best_score
+    for k in range(settings.starts):
+        if halt:
+            break
+        own = replace(settings, seed=start_seed(settings.seed, k))
+        rng = np.random.default_rng(own.seed)
+        first = initial_tour(layout, own)
+        found = {"centres": first.score(objective)[1] * frame.side}
+        polished = refine(first, objective)
+        found["cone"] = polished.score(objective)[1] * frame.side
+        current = descend(polished, settings)  # (works in place)
+        current_score = current.score(objective)
+        found["descent"] = current_score[1] * frame.side
+        mine, mine_score = current, current_score  # this start's best
+        if best is None or best_score is None or better(mine_score, best_score):
+            best, best_score = mine, mine_score
+        assert best_score is not None
         scores.append(best_score[1] * frame.side)
+        state["settled"] = 0
         halt = report()
-    stages["search"] = best_score[1] * frame.side
+        it = 0
+        while not halt and it < settings.iterations and state["settled"] < settings.patience:
+            it += 1
+            state["it"] += 1
+            cand = current.copy()
+            size = int(rng.integers(settings.ruin_min, settings.ruin_max + 1))
+            removed = ruin(cand, rng, min(size, n_keys_max))
+            inserted = repair(cand, rng, objective)
+            cand = descend(cand, settings, _near(cand, np.vstack([removed, inserted])))
+            cand_score = cand.score(objective)
+            if better(cand_score, mine_score):
+                mine, mine_score, state["settled"] = cand, cand_score, 0
+                current, current_score = cand, cand_score
+            else:
+                state["settled"] += 1
+                threshold = settings.accept * (1 - it / max(settings.iterations, 1))
+                if within(cand_score, mine_score, threshold):  # record-to-record travel
+                    current, current_score = cand, cand_score
+                elif not within(current_score, mine_score, threshold):
+                    current, current_score = mine, mine_score
+            if better(mine_score, best_score):
+                best, best_score = mine, mine_score
+            scores.append(best_score[1] * frame.side)
+            halt = report()
+        found["search"] = mine_score[1] * frame.side
+        if mine is best:
+            stages = found
+    assert best is not None
+    it = state["it"]
     best = settle(best, objective)
     if layout.caps is not None:
         _caps_met(problem, frame, best, it)

@@ -157,6 +157,11 @@ class TourSettings:
         is kept apart and returned.
     neighbours
         Legs at which a relocate move tries each disc (the cheapest by a lower bound).
+    starts
+        Independent searches (PyVRP's order, descent, ruin and recreate, each with ``iterations`` and
+        ``patience`` of its own), the first seeded ``seed`` and the others from it
+        (:func:`~pmht_opt.tours.engine.start_seed`); the best tour of all is kept. One start is the
+        search of ``seed`` alone.
     """
 
     seed: int = 0
@@ -169,6 +174,7 @@ class TourSettings:
     accept: float = 0.01
     bisection: int = 6
     neighbours: int = 12
+    starts: int = 1
 
     def __post_init__(self) -> None:
         if (
@@ -187,6 +193,7 @@ class TourSettings:
         if self.ruin_max < self.ruin_min:
             raise ConfigError(f"ruin_max: must be >= ruin_min ({self.ruin_min}), got {self.ruin_max}.")
         _count("neighbours", self.neighbours, 1)
+        _count("starts", self.starts, 1)
         _count("bisection", self.bisection, 0)
         if not (isinstance(self.accept, int | float) and 0.0 <= self.accept < 1.0):
             raise ConfigError(f"accept: expected a number in [0, 1), got {self.accept!r}.")
