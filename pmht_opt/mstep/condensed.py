@@ -97,14 +97,16 @@ MAX_BASIS = 400
 #: rows' slacks on the path differ from its own.
 REFINE = 2
 #: The work (iterations times size, :class:`solvers.WorkBudget`) the small QPs of one condensed
-#: attempt may spend together, on backends that count it (OSQP): twice a whole M-step's
-#: (:data:`pmht_opt.mstep.tuning.MSTEP_WORK`), apart from it. The first imposition of guaranteed
-#: visits in polygons makes a small QP of 140 variables and 789 dense rows that needed more than 2e9
-#: (plan_smoothed of C seed 1000, radius 0.1: that M-step then took 14 s through the whole QP, 5 s
-#: condensed). A small QP of a limit binding over long stretches can use it up without settling;
-#: charged to the M-step's budget it left none for the whole QP (B at T = 150 with a soft
-#: SpeedLimit(0.06)).
-ATTEMPT_WORK = 4e9
+#: attempt may spend together, on backends that count it (OSQP), apart from the M-step's own budget
+#: (:data:`pmht_opt.mstep.tuning.MSTEP_WORK`, 2e9). The size counts the small QP's entries, but its
+#: rows are dense, so an ADMM iteration costs more per unit than the sparse whole QP's: a small QP of
+#: a limit binding over long stretches that does not settle is cheaper to give up early. B at
+#: T = 150 with ``SpeedLimit(0.06)``: three platforms' attempts each spent 4e9 (5.8 s) and failed,
+#: after which the whole QP solved in 0.24 s; at 1.5e9 the stress sweep's slowest feasible M-step
+#: (B, ``SpeedLimit(0.05)``) took 7.4 s instead of 18.1 s, B with a square keep-out 6.0 s instead of
+#: 17.5 s. The largest attempt that succeeds on the guaranteed visits of plan_smoothed on C seed 1000
+#: (radius 0.1), the heaviest measured, spends 1.17e9.
+ATTEMPT_WORK = 1.5e9
 #: An attempt that spends more work than this (OSQP: about 0.5 s of ADMM on small dense QPs) marks its
 #: rows as costly to condense: a limit binding over long stretches (A with SpeedLimit(0.05): 145 small
 #: QPs in 25 M-steps, 55 s, against 1.1 s for the working sets of the whole QP), so the next M-step
