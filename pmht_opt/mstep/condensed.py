@@ -148,6 +148,11 @@ class CondensedQP:
         #: Condensed solves given up in a row, and solves still to leave to the full QP.
         self._failures = 0
         self._skip = 0
+        #: The last small QP solved: its rows and shape and its primal answer, from which a small QP
+        #: of the same rows starts (backends that take a warm start) ...
+        self._warm: tuple[bytes, tuple[int, int], np.ndarray] | None = None
+        #: ... and the latest dual value of every row, from which every small QP's duals start.
+        self._duals = np.zeros(0)
 
     def solve(
         self,
@@ -330,14 +335,25 @@ class CondensedQP:
             b=rows.b[picked] - C_picked @ X0 + shift[picked],
             cones=tuple(rows.units.cones(units)),
         )
+        key = (picked.tobytes(), A.shape)
         try:
             session = session_class(problem, **options)
             session.budget = self._budget
+            if self._duals.size != rows.b.size:
+                self._duals = np.zeros(rows.b.size)
+            # A first-order backend's iterations start from the rows' last duals (a round of the
+            # same M-step with fewer rows, or the last M-step) and, for the same rows as the last
+            # small QP (most M-steps after the first), from its primal answer too.
+            last = self._warm[2] if self._warm is not None and self._warm[:2] == key else None
+            session.warm_start(last, self._duals[picked])
             sol, _ = solvers.retry_failed(session.solve(), options, self.retries, _continued(session))
         except solvers.SettingsError:
             return None
         if not sol.ok or sol.x is None:
             return None
+        self._warm = (key[0], key[1], sol.x)
+        if sol.y is not None and sol.y.size == picked.size:
+            self._duals[picked] = sol.y
         slack = np.zeros(E.shape[1])
         slack[slacks] = sol.x[r:]
         predicted = problem.b - problem.A @ sol.x
