@@ -72,9 +72,12 @@ def plan(mission: Mission, outputs: Outputs, args: argparse.Namespace) -> PlanRe
         )
     total = s.iterations if s.iterations is not None else DEFAULT_ITERATIONS.get(s.method)
     snapshots = tuple(range(total + 1)) if outputs.animation is not None and total else ()
+    # The coverage planner reports its tour search, which stops on its own (patience): no total, and
+    # its iterations are not the flight's.
+    bar_total = None if s.method not in DEFAULT_ITERATIONS else total
     solver = s.shared.get("solver", "auto")
     label = {"pmht": "PMHT"}.get(s.method, s.method)
-    bar = _progress_bar(total, f"{label} ({solver})", args.quiet)
+    bar = _progress_bar(bar_total, f"{label} ({solver})", args.quiet)
 
     def progress(p: Progress) -> None:
         if bar is not None:
@@ -82,7 +85,7 @@ def plan(mission: Mission, outputs: Outputs, args: argparse.Namespace) -> PlanRe
             # The EM reports the negative of its objective (lower is better); show the objective.
             text = f"objective {-score:.6g}" if p.stage == "em" else f"{p.stage} {score:.6g}"
             bar.set_postfix_str(text, refresh=False)
-            bar.update(1)
+            bar.update(max(p.iteration - bar.n, 0))  # iterations done (the first report is at 0)
 
     try:
         result = plan_mission(mission, callback=progress, snapshots=snapshots)
