@@ -260,12 +260,12 @@ def plan_tours(
     objective = settings.objective
     scores: list[float] = []
     stages: dict[str, float] = {}
-    state = {"it": 0, "settled": 0}
+    done = 0  # iterations over every start
     best: Tour | None = None
     best_score: tuple[float, float, float] | None = None
 
-    def report() -> bool:
-        progress = Progress(state["it"], tuple(scores), time.perf_counter() - t0, state["settled"])
+    def report(settled: int) -> bool:
+        progress = Progress(done, tuple(scores), time.perf_counter() - t0, settled)
         if callback is not None:
             callback(progress)
         return stop is not None and bool(stop(progress))
@@ -289,12 +289,12 @@ def plan_tours(
             best, best_score = mine, mine_score
         assert best_score is not None
         scores.append(best_score[1] * frame.side)
-        state["settled"] = 0
-        halt = report()
+        settled = 0
+        halt = report(settled)
         it = 0
-        while not halt and it < settings.iterations and state["settled"] < settings.patience:
+        while not halt and it < settings.iterations and settled < settings.patience:
             it += 1
-            state["it"] += 1
+            done += 1
             cand = current.copy()
             size = int(rng.integers(settings.ruin_min, settings.ruin_max + 1))
             removed = ruin(cand, rng, min(size, n_keys_max))
@@ -302,10 +302,10 @@ def plan_tours(
             cand = descend(cand, settings, _near(cand, np.vstack([removed, inserted])))
             cand_score = cand.score(objective)
             if better(cand_score, mine_score):
-                mine, mine_score, state["settled"] = cand, cand_score, 0
+                mine, mine_score, settled = cand, cand_score, 0
                 current, current_score = cand, cand_score
             else:
-                state["settled"] += 1
+                settled += 1
                 threshold = settings.accept * (1 - it / max(settings.iterations, 1))
                 if within(cand_score, mine_score, threshold):  # record-to-record travel
                     current, current_score = cand, cand_score
@@ -314,12 +314,12 @@ def plan_tours(
             if better(mine_score, best_score):
                 best, best_score = mine, mine_score
             scores.append(best_score[1] * frame.side)
-            halt = report()
+            halt = report(settled)
         found["search"] = mine_score[1] * frame.side
         if mine is best:
             stages = found
     assert best is not None
-    it = state["it"]
+    it = done
     best = settle(best, objective)
     if layout.caps is not None:
         _caps_met(problem, frame, best, it)

@@ -155,9 +155,7 @@ def fly(
     states = track.initial_states(scenario)
     objectives, times, statuses, fallbacks, counts = [], [], [], [], []
     threads = settings.threads if settings.threads is not None else min(M, usable_cores())
-    mstep = make_mstep(
-        flown, settings.solver, settings.solver_settings, settings.accept_inaccurate, threads, constraints
-    )
+    mstep = _mstep(flown, settings, threads, constraints)
     active = tuple(range(len(constraints)))
     solver = str(getattr(mstep, "solver", mstep.name))
     tightened = False
@@ -184,8 +182,6 @@ def fly(
     try:
         for it in range(1, iterations + 1):
             step(it, mstep)
-        if not np.all(np.isfinite(states)):
-            raise SolverError(f"{solver}: the coverage plan is not finite.", backend=solver)
         reports = _verified(solver, scenario, flown, constraints, states, iterations, raise_=False)
         if reports is None:
             # A backend's answer can miss a disc by its own feasibility tolerance, beyond the 1e-5
@@ -194,13 +190,8 @@ def fly(
             # keeps such an error inside. Not the default: a tangent disc must be met at its full radius.
             tightened = True
             mstep.close()
-            inner = (*settings.constraints, discs.tightened(TIGHTEN))
-            mstep = make_mstep(
-                flown, settings.solver, settings.solver_settings, settings.accept_inaccurate, threads, inner
-            )
+            mstep = _mstep(flown, settings, threads, (*settings.constraints, discs.tightened(TIGHTEN)))
             step(iterations + 1, mstep)
-            if not np.all(np.isfinite(states)):
-                raise SolverError(f"{solver}: the coverage plan is not finite.", backend=solver)
     except InfeasibleError as err:
         # The discs at these routes' points and times are one way to cover the locales, not the only
         # one: not a proof that the user's constraints cannot be met.
@@ -271,7 +262,10 @@ def _verified(
     raise_: bool,
 ) -> tuple[ConstraintReport, ...] | None:
     """Every constraint's report on ``states``, verified (:func:`pmht_opt.verify.verify_plan`): its
-    ``SolverError`` raised, or ``None`` returned when ``raise_`` is false."""
+    ``SolverError`` raised, or ``None`` returned when ``raise_`` is false. States that are not finite
+    are a ``SolverError`` either way."""
+    if not np.all(np.isfinite(states)):
+        raise SolverError(f"{solver}: the coverage plan is not finite.", backend=solver)
     ctx = ConstraintContext(scenario=flown, states=states, iteration=iteration)
     reports = tuple(c.violation(states, ctx) for c in constraints)
     try:
@@ -281,6 +275,13 @@ def _verified(
             raise
         return None
     return reports
+
+
+def _mstep(flown: Scenario, settings: Settings, threads: int, constraints: tuple[Constraint, ...]) -> MStep:
+    """The M-step of the flight with ``constraints`` (the user's and the discs, as imposed)."""
+    return make_mstep(
+        flown, settings.solver, settings.solver_settings, settings.accept_inaccurate, threads, constraints
+    )
 
 
 def _soft_start(
@@ -297,9 +298,7 @@ def _soft_start(
     *user, discs = constraints
     soft = copy.copy(discs)
     soft.soft = True
-    mstep = make_mstep(
-        flown, settings.solver, settings.solver_settings, settings.accept_inaccurate, threads, (*user, soft)
-    )
+    mstep = _mstep(flown, settings, threads, (*user, soft))
     try:
         return mstep.solve(data)
     finally:
