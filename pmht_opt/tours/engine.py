@@ -160,6 +160,41 @@ def initial_tour(layout: Layout, settings: TourSettings) -> Tour:
     return Tour(layout, [list(map(int, r)) for r in routes], [layout.centres[r].copy() for r in routes])
 
 
+def resequence(tour: Tour, settings: TourSettings, rng: np.random.Generator) -> Tour:
+    """The tour's key discs in a new order: PyVRP's multiple TSP through their turn points, then the
+    cone program, a repair of any disc the new legs no longer meet, and the descent.
+
+    The ruins move a few discs at a time; this move re-sequences every route at once, and may hand
+    whole stretches from one vehicle to another: from a good set of turn points, PyVRP's search over
+    orders finds routes that many ruins would not reach. The seed of PyVRP's search is drawn from
+    ``rng``.
+    """
+    keys = [k for ks in tour.keys for k in ks]
+    if not keys:
+        return tour.copy()
+    lay = tour.layout
+    points = np.vstack([p for p in tour.pts if len(p)])
+    seed = int(rng.integers(SEED_MAX + 1))
+    if settings.objective == "time" and len(lay.starts) > 1 and settings.bisection > 0:
+        routes = order_points_minmax(
+            lay.starts,
+            lay.closed,
+            points,
+            settings.resequence_iterations,
+            seed,
+            steps=settings.bisection,
+            caps=lay.caps,
+        )
+    else:
+        routes = order_points(
+            lay.starts, lay.closed, points, settings.resequence_iterations, seed, caps=lay.caps, keep=True
+        )
+    assert routes is not None
+    out = Tour(lay, [[keys[i] for i in r] for r in routes], [points[r].copy() for r in routes])
+    repair(out, rng, settings.objective)
+    return descend(refine(out, settings.objective), settings)
+
+
 def settle(tour: Tour, objective: str) -> Tour:
     """The better of the tour and the cone program on *all* its discs in the order it meets them.
 
@@ -295,11 +330,14 @@ def plan_tours(
         while not halt and it < settings.iterations and settled < settings.patience:
             it += 1
             done += 1
-            cand = current.copy()
-            size = int(rng.integers(settings.ruin_min, settings.ruin_max + 1))
-            removed = ruin(cand, rng, min(size, n_keys_max))
-            inserted = repair(cand, rng, objective)
-            cand = descend(cand, settings, _near(cand, np.vstack([removed, inserted])))
+            if settings.resequence and it % settings.resequence == 0:
+                cand = resequence(current, settings, rng)
+            else:
+                cand = current.copy()
+                size = int(rng.integers(settings.ruin_min, settings.ruin_max + 1))
+                removed = ruin(cand, rng, min(size, n_keys_max))
+                inserted = repair(cand, rng, objective)
+                cand = descend(cand, settings, _near(cand, np.vstack([removed, inserted])))
             cand_score = cand.score(objective)
             if better(cand_score, mine_score):
                 mine, mine_score, settled = cand, cand_score, 0

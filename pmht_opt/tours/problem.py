@@ -157,6 +157,13 @@ class TourSettings:
         is kept apart and returned.
     neighbours
         Legs at which a relocate move tries each disc (the cheapest by a lower bound).
+    resequence
+        Every this many iterations the candidate is not a ruin and recreate but a re-sequencing: PyVRP
+        orders the current tour's turn points anew (a multiple TSP through them, as it ordered the
+        centres at first), then the cone program, a repair of any disc no longer met, and the descent
+        (:func:`~pmht_opt.tours.engine.resequence`); 0 never.
+    resequence_iterations
+        PyVRP iterations of each re-sequencing.
     starts
         Independent searches (PyVRP's order, descent, ruin and recreate, each with ``iterations`` and
         ``patience`` of its own), the first seeded ``seed`` and the others from it
@@ -174,6 +181,8 @@ class TourSettings:
     accept: float = 0.01
     bisection: int = 6
     neighbours: int = 12
+    resequence: int = 10
+    resequence_iterations: int = 300
     starts: int = 1
 
     def __post_init__(self) -> None:
@@ -194,6 +203,8 @@ class TourSettings:
             raise ConfigError(f"ruin_max: must be >= ruin_min ({self.ruin_min}), got {self.ruin_max}.")
         _count("neighbours", self.neighbours, 1)
         _count("starts", self.starts, 1)
+        _count("resequence", self.resequence, 0)
+        _count("resequence_iterations", self.resequence_iterations, 1)
         _count("bisection", self.bisection, 0)
         if not (isinstance(self.accept, int | float) and 0.0 <= self.accept < 1.0):
             raise ConfigError(f"accept: expected a number in [0, 1), got {self.accept!r}.")
