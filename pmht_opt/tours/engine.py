@@ -175,6 +175,7 @@ def resequence(tour: Tour, settings: TourSettings, rng: np.random.Generator) -> 
     lay = tour.layout
     points = np.vstack([p for p in tour.pts if len(p)])
     seed = int(rng.integers(SEED_MAX + 1))
+    routes: list[list[int]] | None
     if settings.objective == "time" and len(lay.starts) > 1 and settings.bisection > 0:
         routes = order_points_minmax(
             lay.starts,

@@ -296,13 +296,22 @@ def insert_cheapest(tour: Tour, disc: int, objective: str = "distance") -> np.nd
     caps = lay.caps
     lengths = tour.lengths() if objective == "time" or caps is not None else np.zeros(len(tour.keys))
     best: tuple[tuple[float, float, float], int, int, np.ndarray, np.ndarray] | None = None
+    # Every leg of every route priced at once; an open route's last leg is its tail (reach the disc).
+    verts = [tour.verts(m) for m in range(len(tour.keys))]
+    A = np.vstack([V[:-1] for V in verts])
+    B = np.vstack([V[1:] for V in verts])
+    bounds = np.cumsum([0] + [len(V) - 1 for V in verts])
+    tail = np.zeros(len(A), dtype=bool)
+    tail[bounds[1:][~lay.closed] - 1] = True
+    Q = np.zeros_like(A)
+    F = np.zeros(len(A))
+    Q[~tail], F[~tail] = best_points(A[~tail], B[~tail], z[None], np.full(int((~tail).sum()), rr))
+    F[~tail] -= _norm(A[~tail] - B[~tail])
+    if tail.any():
+        Q[tail], F[tail] = reach_points(A[tail], z[None], np.full(int(tail.sum()), rr))
     for m in range(len(tour.keys)):
-        V = tour.verts(m)
-        n = len(V) - 1
-        q, f = best_points(V[:-1], V[1:], z[None], np.full(n, rr))
-        cost = f - _norm(V[:-1] - V[1:])
-        if not lay.closed[m]:
-            q[-1], cost[-1] = reach_points(V[-1], z, np.array(rr))
+        V = verts[m]
+        q, cost = Q[bounds[m] : bounds[m + 1]], F[bounds[m] : bounds[m + 1]]
         i = int(np.argmin(cost))  # also the least excess on this route: it grows with the cost
         over = 0.0
         if caps is not None:

@@ -21,15 +21,26 @@ from pmht_opt.tours.tour import Tour
 
 #: A vertex is a turn when the detour through it exceeds this (unit box).
 TURN = 1e-8
+#: Key sequences whose turn points a layout keeps (:attr:`~pmht_opt.tours.tour.Layout.solved`); all
+#: are forgotten when there are more.
+KEEP = 50_000
 
 
 def solve_keys(tour: Tour) -> Tour:
-    """The same keys with the cone program's turn points (coverage in passing not checked)."""
+    """The same keys with the cone program's turn points (coverage in passing not checked); a route
+    whose key sequence the layout has seen before gets the turn points solved then."""
     lay = tour.layout
     out = tour.copy()
     for m, keys in enumerate(tour.keys):
-        idx = np.array(keys, dtype=np.intp)
-        out.pts[m], _ = disc_sequence(lay.starts[m], lay.centres[idx], lay.radii[idx], bool(lay.closed[m]))
+        key = (m, tuple(keys))
+        pts = lay.solved.get(key)
+        if pts is None:
+            idx = np.array(keys, dtype=np.intp)
+            pts, _ = disc_sequence(lay.starts[m], lay.centres[idx], lay.radii[idx], bool(lay.closed[m]))
+            if len(lay.solved) >= KEEP:
+                lay.solved.clear()
+            lay.solved[key] = pts
+        out.pts[m] = pts.copy()
     return out
 
 

@@ -11,7 +11,7 @@ which the route can be extended, and which keeps an empty open route's start in 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -21,13 +21,21 @@ from pmht_opt.tours.geometry import segment_distances
 @dataclass(frozen=True)
 class Layout:
     """The normalised problem: starts ``(M, 2)``, closed ``(M,)``, centres ``(N, 2)``, radii ``(N,)``,
-    and the route length caps ``(M,)`` (``inf`` for none), or None when no route has one."""
+    and the route length caps ``(M,)`` (``inf`` for none), or None when no route has one.
+
+    ``solved`` keeps the cone program's turn points of each route's key sequence met so far
+    (:func:`~pmht_opt.tours.polish.solve_keys`): a search meets the same routes again and again, and
+    the program's answer depends on nothing else, so it is solved once.
+    """
 
     starts: np.ndarray
     closed: np.ndarray
     centres: np.ndarray
     radii: np.ndarray
     caps: np.ndarray | None = None
+    solved: dict[tuple[int, tuple[int, ...]], np.ndarray] = field(
+        default_factory=dict, compare=False, repr=False
+    )
 
     def excess(self, lengths: np.ndarray) -> float:
         r"""How far routes of these lengths go over their caps in all,
