@@ -21,8 +21,10 @@ from pmht_opt.tours import (
     plan_tours,
     read_mennell,
 )
-from pmht_opt.tours.engine import start_seed
+from pmht_opt.tours.engine import resequence, start_seed
+from pmht_opt.tours.polish import solve_keys
 from pmht_opt.tours.socp import disc_sequence
+from pmht_opt.tours.tour import Layout, Tour
 
 FAST = TourSettings(order_iterations=200, iterations=20, patience=10)
 
@@ -146,6 +148,10 @@ def test_bad_input_names_the_field() -> None:
         TourSettings(iterations=1.5)  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match="starts"):
         TourSettings(starts=0)
+    with pytest.raises(ConfigError, match="resequence"):
+        TourSettings(resequence=-1)
+    with pytest.raises(ConfigError, match="resequence_iterations"):
+        TourSettings(resequence_iterations=0)
 
 
 def test_check_refuses_a_wrong_tour() -> None:
@@ -325,3 +331,43 @@ def test_caps_hold_or_are_refused(seed: int, n: int, m: int, closed: bool, facto
         return
     assert np.all(tours.lengths <= caps)
     assert np.all(coverage_gaps(tours) <= 0)
+
+
+def _line_layout() -> Layout:
+    """Five discs of radius 0.1 at x = 1, 3, 5, 7, 9 on a line, one open route from the origin."""
+    centres = np.column_stack([np.arange(1.0, 10.0, 2.0), np.zeros(5)])
+    return Layout(np.zeros((1, 2)), np.array([False]), centres, np.full(5, 0.1))
+
+
+def test_resequencing_straightens_a_scrambled_route() -> None:
+    lay = _line_layout()
+    order = [3, 0, 4, 1, 2]
+    scrambled = Tour(lay, [order], [lay.centres[order].copy()])
+    assert scrambled.lengths()[0] > 20.0
+    out = resequence(scrambled, FAST, np.random.default_rng(0))
+    # One straight leg from the origin into the last disc: 9 - 0.1; the others are crossed on the way.
+    assert out.covered().all()
+    assert out.lengths()[0] == pytest.approx(8.9, abs=1e-6)
+    again = resequence(scrambled, FAST, np.random.default_rng(0))
+    assert again.keys == out.keys and all(np.array_equal(a, b) for a, b in zip(again.pts, out.pts))
+    assert scrambled.keys == [order]  # the tour it is given is left as it was
+
+
+def test_resequencing_keeps_every_disc_met_on_random_fleets() -> None:
+    for seed in range(4):
+        problem = _random(seed, n=30, m=3, closed=bool(seed % 2))
+        tours = plan_tours(problem, replace(FAST, resequence=1))  # every candidate a re-sequencing
+        check_tours(tours)
+        assert tours.info["iterations"] >= 1
+
+
+def test_a_route_solved_once_is_not_solved_again() -> None:
+    lay = _line_layout()
+    tour = Tour(lay, [[4, 2]], [lay.centres[[4, 2]].copy()])
+    first = solve_keys(tour)
+    assert list(lay.solved) == [(0, (4, 2))]
+    first.pts[0][:] = -1.0  # a search that changes turn points in place does not change what is kept
+    second = solve_keys(tour)
+    np.testing.assert_array_equal(second.pts[0], lay.solved[(0, (4, 2))])
+    expected, _ = disc_sequence(lay.starts[0], lay.centres[[4, 2]], lay.radii[[4, 2]], False)
+    np.testing.assert_array_equal(second.pts[0], expected)
