@@ -349,7 +349,8 @@ def test_resequencing_straightens_a_scrambled_route() -> None:
     assert out.covered().all()
     assert out.lengths()[0] == pytest.approx(8.9, abs=1e-6)
     again = resequence(scrambled, FAST, np.random.default_rng(0))
-    assert again.keys == out.keys and all(np.array_equal(a, b) for a, b in zip(again.pts, out.pts))
+    assert again.keys == out.keys
+    assert all(np.array_equal(a, b) for a, b in zip(again.pts, out.pts, strict=True))
     assert scrambled.keys == [order]  # the tour it is given is left as it was
 
 
