@@ -290,6 +290,8 @@ class HorizonQP:
             self.state.working,
             self._vector(*exact),
             budget,
+            self.extra.row_size,
+            (self.extra.A, self.extra.b),
         )
         if sol is not None and sol.status in solvers.INFEASIBLE and probe is not None:
             probe(sol)  # the relaxation's verdict holds for the whole QP: it names the culprits

@@ -24,6 +24,18 @@ the same (the weights move every EM iteration), so that the backend continues fr
 a new set starts from the last answer. A working-set solve that does not succeed is given up for the
 whole QP (:meth:`~pmht_opt.mstep.horizon.HorizonQP.solve`), except a verdict of infeasibility, which a
 relaxation's rows already imply for the whole.
+
+Misses are measured on the rows as they are meant, on the states, not as the QP holds them: rows of
+position differences are rewritten on the increments with the dynamics equalities
+(:func:`~pmht_opt.mstep.formulation.in_increments`), and the two agree only where the dynamics hold
+exactly. A first-order backend meets those to its tolerance, which is absolute or relative to the
+largest entry of ``A x`` (positions of size 10-100): on C with ``SpeedLimit(1e-3)`` OSQP met the
+increments' rows and missed the positions' differences by 1.3e-6, 0.13% of the limit. A unit of the
+set missed by more than :data:`REL_MET` of its size (a polygon's radius; 1 for a normalised cone or a
+unit-normal row) is therefore imposed again, tighter by twice its miss, and the set solved again from
+its last iterate, at most :data:`REFINE` times: the backend's error is of much the same size and sign
+on the tightened rows, so the answer lands inside the true ones. A verdict of infeasibility on
+tightened rows proves nothing: the whole QP then decides.
 """
 
 from __future__ import annotations
@@ -31,10 +43,16 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 
 import solvers
 from pmht_opt.mstep.condensed import BOUND, MAX_ROUNDS, MET, ROUNDING, WORST
 from pmht_opt.mstep.units import Units
+
+#: A unit of the working set missed by more than this fraction of its size is imposed again, tighter.
+REL_MET = 1e-4
+#: Most times the working set is imposed again, tighter, per solve.
+REFINE = 4
 
 
 class WorkingSetQP:
@@ -64,6 +82,8 @@ class WorkingSetQP:
         options: dict[str, Any],
         start: np.ndarray,
         budget: solvers.WorkBudget | None = None,
+        sizes: np.ndarray | None = None,
+        measured: tuple[sp.spmatrix, np.ndarray] | None = None,
     ) -> solvers.QPSolution | None:
         """The answer of ``problem`` (its first ``n_dyn`` rows the dynamics, its cones a
         :class:`solvers.Zero` of them and then the constraint rows'), or ``None`` if the working set
@@ -71,26 +91,40 @@ class WorkingSetQP:
 
         ``pattern`` fixes the structure of the constraint rows (a new one resets what the last answer
         bound); ``start`` is a point of the QP's variables (the unconstrained optimum) whose violated
-        units seed the working set.
+        units seed the working set. ``sizes`` (per constraint row, default 1) is what each row's miss
+        is measured against (module docstring). ``measured`` is the constraint rows ``(A, b)`` as
+        they are meant, when ``problem`` holds them rewritten with the dynamics
+        (:func:`~pmht_opt.mstep.formulation.in_increments`): the two agree only where the dynamics
+        hold exactly, and a first-order backend meets them to its tolerance, so misses are measured
+        on these.
         """
-        rows = _Rows(problem, n_dyn, self.n_vars)
+        rows = _Rows(problem, n_dyn, self.n_vars, sizes, measured)
         shape = tuple((c.kind, c.dim) for c in problem.cones[1:])
         if shape != self._shape:
             self._shape, self._bound, self._last = shape, np.zeros(0, dtype=int), None
         seed = rows.missed(start, np.zeros(0, dtype=int), MET, WORST if self._bound.size else 0.0)
         units = np.union1d(np.union1d(rows.always, self._bound), seed)
         x_start = start if self._last is None else self._last
-        iterations = 0
-        for _ in range(MAX_ROUNDS):
-            sol = self._round(problem, rows, units, pattern, session_class, options, x_start, budget)
+        iterations = refined = 0
+        shift = np.zeros(problem.b.size)  # what tightens each row (module docstring)
+        for _ in range(MAX_ROUNDS + REFINE):
+            sol = self._round(problem, rows, units, pattern, session_class, options, x_start, budget, shift)
             iterations += sol.iterations
             if sol.status in solvers.INFEASIBLE:
-                return sol
+                return sol if refined == 0 else None
             if not sol.ok or sol.x is None:
                 return None
             x = sol.x
-            met = max(MET, rows.worst(x, units))
+            # Outside the set, a unit may be missed as far as the backend missed those in it, but no
+            # further than REL_MET of its size (a unit that small joins the set and is tightened).
+            met = np.maximum(MET, np.minimum(rows.worst(x, units), REL_MET * rows.scale))
             missed = rows.missed(x, units, met, 0.0)
+            far = rows.far(x, units)
+            if missed.size == 0 and far.size and refined < REFINE:
+                refined += 1
+                shift[rows.n_dyn + rows.units.start[far]] -= 2.0 * rows.miss(x)[far]
+                x_start = x
+                continue
             if missed.size == 0:
                 self._bound = np.intersect1d(rows.binding(x), rows.on_state)
                 self._last = x
@@ -111,12 +145,14 @@ class WorkingSetQP:
         options: dict[str, Any],
         x_start: np.ndarray,
         budget: solvers.WorkBudget | None,
+        shift: np.ndarray,
     ) -> solvers.QPSolution:
-        """Solve the QP of the rows of ``units``: in the kept session if it holds these rows (only the
-        numbers moved), else in a new one started from ``x_start``."""
+        """Solve the QP of the rows of ``units``, their right-hand sides moved by ``shift``: in the
+        kept session if it holds these rows (only the numbers moved), else in a new one started from
+        ``x_start``."""
         picked = np.concatenate([np.arange(rows.n_dyn), rows.n_dyn + rows.units.rows(units)])
         A = problem.A[picked]
-        b = problem.b[picked]
+        b = (problem.b + shift)[picked]
         key = (pattern, units.tobytes())
         session = self._session
         if session is not None and key == self._session_key:
@@ -143,12 +179,25 @@ class WorkingSetQP:
 class _Rows:
     """The constraint rows of a QP split into units, with the measures of a working set."""
 
-    def __init__(self, problem: solvers.QPProblem, n_dyn: int, n_vars: int) -> None:
+    def __init__(
+        self,
+        problem: solvers.QPProblem,
+        n_dyn: int,
+        n_vars: int,
+        sizes: np.ndarray | None = None,
+        measured: tuple[sp.spmatrix, np.ndarray] | None = None,
+    ) -> None:
         self.n_dyn = n_dyn
-        A = problem.A.tocsr()
-        self.A = A[n_dyn:]
-        self.b = problem.b[n_dyn:]
+        if measured is None:
+            self.A = problem.A.tocsr()[n_dyn:]
+            self.b = problem.b[n_dyn:]
+        else:
+            self.A = sp.csr_matrix(measured[0])
+            self.b = np.asarray(measured[1], dtype=float)
         self.units = Units.of(list(problem.cones[1:]))
+        #: Per unit, what its miss is measured against (the least size of its rows).
+        per_row = np.ones(self.b.size) if sizes is None or sizes.size != self.b.size else sizes
+        self.scale = np.minimum.reduceat(per_row, self.units.start) if self.b.size else np.zeros(0)
         # Units with a row on the states (not only on slacks), and the rest: the slacks' own s >= 0.
         on = np.zeros(self.units.start.size, dtype=bool)
         coo = self.A.tocoo()
@@ -167,7 +216,9 @@ class _Rows:
         miss = -self.margin(x)[units] - ROUNDING * self.size[units]
         return float(miss.max(initial=0.0))
 
-    def missed(self, x: np.ndarray, exclude: np.ndarray, met: float, fraction: float) -> np.ndarray:
+    def missed(
+        self, x: np.ndarray, exclude: np.ndarray, met: float | np.ndarray, fraction: float
+    ) -> np.ndarray:
         """The units outside ``exclude`` missed at ``x`` by more than ``met`` plus rounding and by at
         least ``fraction`` of the worst of them."""
         miss = -self.margin(x) - (met + ROUNDING * self.size)
@@ -176,6 +227,16 @@ class _Rows:
         if worst <= 0.0:
             return np.zeros(0, dtype=int)
         return np.flatnonzero(miss >= max(fraction * worst, np.finfo(float).tiny))
+
+    def miss(self, x: np.ndarray) -> np.ndarray:
+        """Per unit, how far it is missed at ``x`` (0 where it is met)."""
+        return np.maximum(-self.margin(x), 0.0)
+
+    def far(self, x: np.ndarray, units: np.ndarray) -> np.ndarray:
+        """The linear or cone units among ``units`` missed at ``x`` by more than :data:`REL_MET` of
+        their size, beyond :data:`~pmht_opt.mstep.condensed.MET` and rounding."""
+        miss = self.miss(x)[units] - (REL_MET * self.scale[units] + MET + ROUNDING * self.size[units])
+        return units[(miss > 0.0) & (self.units.kind[units] != 0)]
 
     def binding(self, x: np.ndarray) -> np.ndarray:
         """The units within :data:`~pmht_opt.mstep.condensed.BOUND` of their bound at ``x``."""
