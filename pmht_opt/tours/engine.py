@@ -38,11 +38,12 @@ Counting each arc in PyVRP's caps shorter by half or all of its discs' radii (th
 discs are shorter than through the centres) made the totals no better: 4.03% (worst 10.6%) and 4.79%
 (16.8%) over the uncapped answer, against 3.96% (8.7%) with the centres' lengths.
 
-The re-sequencing was measured on A, B and C (seeds 0-2 at radius 0.3, seed 0 at 0.1, plan seeds
-0-2): every 10th candidate, 300 PyVRP iterations each, made the mean tour 1.5% shorter at radius 0.3
-and 0.5% at 0.1, and the worst plan-seed spread 1.05% against 2.8%, for about a fifth more time.
-With the ruins alone the search was still improving at its last iteration, each plan seed in a
-different pattern of routes; four times the iterations left a spread of 1.6%.
+The re-sequencing was measured on A, B and C at radius 0.3, plan seeds 0-2: every 10th candidate
+(300 PyVRP iterations each) made the mean tour 1.5% shorter on scenario seeds 0-2 and the worst
+plan-seed spread 1.05% against 2.8%; on seeds 3-5 it left spreads of 1.6% on average (3.2% at
+worst), and every 5th candidate 1.25% (2.0%) for a tenth more time, hence every 5th. With the ruins
+alone the search was still improving at its last iteration, each plan seed in a different pattern of
+routes; four times the iterations left a spread of 1.6%.
 
 A generalised TSP over discretised discs (PyVRP with one group of boundary points per disc, the
 Carrabs et al. scheme) was tried first and dropped: PyVRP's search on such groups stalled about 10%

@@ -181,7 +181,7 @@ class TourSettings:
     accept: float = 0.01
     bisection: int = 6
     neighbours: int = 12
-    resequence: int = 10
+    resequence: int = 5
     resequence_iterations: int = 300
     starts: int = 1
 
