@@ -372,3 +372,20 @@ def test_a_route_solved_once_is_not_solved_again() -> None:
     np.testing.assert_array_equal(second.pts[0], lay.solved[(0, (4, 2))])
     expected, _ = disc_sequence(lay.starts[0], lay.centres[[4, 2]], lay.radii[[4, 2]], False)
     np.testing.assert_array_equal(second.pts[0], expected)
+
+
+def test_a_cone_program_clarabel_does_not_solve_still_gives_points_in_every_disc() -> None:
+    # A zig-zag of 15 discs from A at radius 0.3 (unit box) that Clarabel ended "almost solved" on
+    # this machine, which used to fail the whole plan; solved or not, the answer must be feasible.
+    lo, mid, hi = 0.4479166669771075, 0.5520833330228925, 0.34375
+    x = [0.65625, 0.7604166669771075, 0.7604166669771075, 0.65625, 0.7604166669771075, 0.65625, 0.65625]
+    x += [mid, mid, lo, lo, hi, hi, 0.23958333302289248, 0.23958333302289248]
+    y = [0.23958333302289248, 0.23958333302289248, hi, hi, lo, lo, mid, mid, lo, mid, lo, lo, mid, mid, lo]
+    centres = np.column_stack([x, y])
+    radii = np.full(15, 0.03124999813735485)
+    start = np.array([0.6399050047621131, 0.15541657898575068])
+    pts, length = disc_sequence(start, centres, radii, False)
+    assert np.all(np.hypot(*(pts - centres).T) <= radii)
+    through_centres = float(np.hypot(*np.diff(np.vstack([start, centres]), axis=0).T).sum())
+    assert length <= through_centres
+    assert length == pytest.approx(float(np.hypot(*np.diff(np.vstack([start, pts]), axis=0).T).sum()))

@@ -23,7 +23,6 @@ import numpy as np
 import scipy.sparse as sp
 
 import solvers
-from pmht_opt.exceptions import SolverError
 from pmht_opt.tours.geometry import polyline_length, pull_inside
 
 
@@ -41,10 +40,8 @@ def disc_sequence(
     closed
         Whether the polyline returns to ``start`` (the leg home counts in the length).
 
-    Raises
-    ------
-    SolverError
-        If the cone program is not solved to optimality.
+    If the cone program is not solved (Clarabel's "almost solved" answer is taken, pulled into the
+    discs), the centres are returned: a feasible answer, never a wrong one.
     """
     K = centres.shape[0]
     if K == 0:
@@ -87,13 +84,14 @@ def disc_sequence(
     q = np.concatenate([np.zeros(2 * K), np.ones(L)])
     problem = solvers.QPProblem(sp.csc_matrix((n, n)), q, A, b, tuple(solvers.SOC(3) for _ in range(L + K)))
     sol = solvers.solve_qp(problem, "clarabel")
-    if not sol.ok or sol.x is None:
-        raise SolverError(
-            f"the shortest polyline through {K} discs was not solved ({sol.raw_status}).",
-            backend="clarabel",
-            status=sol.raw_status,
-        )
-    # The interior point method meets the cones to its tolerance: pull each point into its disc.
-    pts = pull_inside(sol.x[: 2 * K].reshape(K, 2), centres, radii)
+    if sol.usable(accept_inaccurate=True) and sol.x is not None and np.all(np.isfinite(sol.x)):
+        # The interior point method meets the cones to its tolerance: pull each point into its disc.
+        pts = pull_inside(sol.x[: 2 * K].reshape(K, 2), centres, radii)
+    else:
+        # Not solved ("almost solved" once on a route of 15 discs of A at radius 0.3, where an earlier
+        # version failed the plan): the centres are a feasible answer, and every caller keeps the tour
+        # it had unless the new one is shorter and meets every disc, so a weaker answer here costs
+        # length, never validity.
+        pts = centres.copy()
     verts = np.vstack([start, pts, start]) if closed else np.vstack([start, pts])
     return pts, polyline_length(verts)
