@@ -34,8 +34,9 @@ increments' rows and missed the positions' differences by 1.3e-6, 0.13% of the l
 set missed by more than :data:`REL_MET` of its size (a polygon's radius; 1 for a normalised cone or a
 unit-normal row) is therefore imposed again, tighter by twice its miss, and the set solved again from
 its last iterate, at most :data:`REFINE` times: the backend's error is of much the same size and sign
-on the tightened rows, so the answer lands inside the true ones. A verdict of infeasibility on
-tightened rows proves nothing: the whole QP then decides.
+on the tightened rows, so the answer lands inside the true ones. When the tightened rounds do not
+halve the largest relative miss, the answer before them is kept. A verdict of infeasibility on
+tightened rows proves nothing: the whole QP then decides (or the answer before them stands).
 """
 
 from __future__ import annotations
@@ -107,13 +108,21 @@ class WorkingSetQP:
         x_start = start if self._last is None else self._last
         iterations = refined = 0
         shift = np.zeros(problem.b.size)  # what tightens each row (module docstring)
+        # The answer before any tightening, and its largest relative miss: kept when the tightened
+        # rounds do not halve that miss (the shift inside the backend's own tolerance, as with an
+        # acceleration limit of 1e-3 on B, where rounds stopped after 25 iterations, their misses
+        # unchanged and the dynamics met less well).
+        first: tuple[solvers.QPSolution, np.ndarray, float] | None = None
         for _ in range(MAX_ROUNDS + REFINE):
             sol = self._round(problem, rows, units, pattern, session_class, options, x_start, budget, shift)
             iterations += sol.iterations
-            if sol.status in solvers.INFEASIBLE:
-                return sol if refined == 0 else None
-            if not sol.ok or sol.x is None:
-                return None
+            if sol.status in solvers.INFEASIBLE and refined == 0:
+                return sol
+            if not sol.ok or sol.x is None or sol.status in solvers.INFEASIBLE:
+                if first is None:
+                    return None
+                sol, x = first[0], first[1]
+                return self._accepted(sol, x, rows, units, iterations)
             x = sol.x
             # Outside the set, a unit may be missed as far as the backend missed those in it, but no
             # further than REL_MET of its size (a unit that small joins the set and is tightened).
@@ -121,19 +130,30 @@ class WorkingSetQP:
             missed = rows.missed(x, units, met, 0.0)
             far = rows.far(x, units)
             if missed.size == 0 and far.size and refined < REFINE:
+                if first is None:
+                    first = (sol, x.copy(), rows.relative_miss(x, units))
                 refined += 1
                 shift[rows.n_dyn + rows.units.start[far]] -= 2.0 * rows.miss(x)[far]
                 x_start = x
                 continue
             if missed.size == 0:
-                self._bound = np.intersect1d(rows.binding(x), rows.on_state)
-                self._last = x
-                sol.iterations = iterations
-                sol.info["working_set"] = {"units": int(units.size), "of": int(rows.units.start.size)}
-                return sol
+                if first is not None and rows.relative_miss(x, units) > 0.5 * first[2]:
+                    sol, x = first[0], first[1]
+                return self._accepted(sol, x, rows, units, iterations)
             units = np.union1d(units, missed)
             x_start = x
         return None
+
+    def _accepted(
+        self, sol: solvers.QPSolution, x: np.ndarray, rows: _Rows, units: np.ndarray, iterations: int
+    ) -> solvers.QPSolution:
+        """``sol`` with answer ``x``, recorded as this solve's: the units binding it start the next."""
+        self._bound = np.intersect1d(rows.binding(x), rows.on_state)
+        self._last = x
+        sol.x = x
+        sol.iterations = iterations
+        sol.info["working_set"] = {"units": int(units.size), "of": int(rows.units.start.size)}
+        return sol
 
     def _round(
         self,
@@ -231,6 +251,12 @@ class _Rows:
     def miss(self, x: np.ndarray) -> np.ndarray:
         """Per unit, how far it is missed at ``x`` (0 where it is met)."""
         return np.maximum(-self.margin(x), 0.0)
+
+    def relative_miss(self, x: np.ndarray, units: np.ndarray) -> float:
+        """The largest miss at ``x`` of the inequality and cone units among ``units``, relative to
+        their size (0 if none is missed)."""
+        keep = units[self.units.kind[units] != 0]
+        return float((self.miss(x)[keep] / self.scale[keep]).max(initial=0.0))
 
     def far(self, x: np.ndarray, units: np.ndarray) -> np.ndarray:
         """The linear or cone units among ``units`` missed at ``x`` by more than :data:`REL_MET` of
