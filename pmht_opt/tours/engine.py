@@ -150,6 +150,25 @@ def start_seed(seed: int, k: int) -> int:
     return int(state % np.uint64(SEED_MAX + 1))
 
 
+def _order(
+    layout: Layout, points: np.ndarray, iterations: int, seed: int, settings: TourSettings
+) -> list[list[int]]:
+    """PyVRP's routes through ``points`` for the objective: for ``"time"`` with several vehicles the
+    bisection on the longest route, else the shortest total; within the caps when there are some
+    (PyVRP's best routes are taken even when it could not keep them)."""
+    routes: list[list[int]] | None
+    if settings.objective == "time" and len(layout.starts) > 1 and settings.bisection > 0:
+        routes = order_points_minmax(
+            layout.starts, layout.closed, points, iterations, seed, steps=settings.bisection, caps=layout.caps
+        )
+    else:
+        routes = order_points(
+            layout.starts, layout.closed, points, iterations, seed, caps=layout.caps, keep=True
+        )
+    assert routes is not None
+    return routes
+
+
 def initial_tour(layout: Layout, settings: TourSettings) -> Tour:
     """Every disc a key, in PyVRP's order of the centres, turn points at the centres.
 
@@ -157,15 +176,7 @@ def initial_tour(layout: Layout, settings: TourSettings) -> Tour:
     length limit (:func:`~pmht_opt.tours.ordering.order_points_minmax`). With caps, PyVRP keeps each
     route within its cap (its best routes are taken even when it could not).
     """
-    args = (layout.starts, layout.closed, layout.centres, settings.order_iterations, settings.seed)
-    routes: list[list[int]] | None
-    if settings.objective == "time" and len(layout.starts) > 1 and settings.bisection > 0:
-        routes = order_points_minmax(*args, steps=settings.bisection, caps=layout.caps)
-    elif layout.caps is not None:
-        routes = order_points(*args, caps=layout.caps, keep=True)
-    else:
-        routes = order_points(*args)
-    assert routes is not None
+    routes = _order(layout, layout.centres, settings.order_iterations, settings.seed, settings)
     return Tour(layout, [list(map(int, r)) for r in routes], [layout.centres[r].copy() for r in routes])
 
 
@@ -184,22 +195,7 @@ def resequence(tour: Tour, settings: TourSettings, rng: np.random.Generator) -> 
     lay = tour.layout
     points = np.vstack([p for p in tour.pts if len(p)])
     seed = int(rng.integers(SEED_MAX + 1))
-    routes: list[list[int]] | None
-    if settings.objective == "time" and len(lay.starts) > 1 and settings.bisection > 0:
-        routes = order_points_minmax(
-            lay.starts,
-            lay.closed,
-            points,
-            settings.resequence_iterations,
-            seed,
-            steps=settings.bisection,
-            caps=lay.caps,
-        )
-    else:
-        routes = order_points(
-            lay.starts, lay.closed, points, settings.resequence_iterations, seed, caps=lay.caps, keep=True
-        )
-    assert routes is not None
+    routes = _order(lay, points, settings.resequence_iterations, seed, settings)
     out = Tour(lay, [[keys[i] for i in r] for r in routes], [points[r].copy() for r in routes])
     repair(out, rng, settings.objective)
     return descend(refine(out, settings.objective), settings)
