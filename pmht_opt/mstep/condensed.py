@@ -61,7 +61,7 @@ from pmht_opt.mstep.basis import PIVOT, factor_sigma, row_basis
 from pmht_opt.mstep.formulation import BLOCK, QPLayout
 from pmht_opt.mstep.responses import Responses
 from pmht_opt.mstep.rows import ExtraRows
-from pmht_opt.mstep.units import CondensedRows
+from pmht_opt.mstep.units import CondensedRows, most_violated
 from solvers.banded import BandedSmoother
 
 #: A unit outside the working set counts as met when its violation (``-s`` of a linear row,
@@ -206,6 +206,7 @@ class CondensedQP:
         # Carried over: the units that bound the last answer and the worst violations now; afresh:
         # every unit the unconstrained optimum violates.
         first = _worst(margin, self._bound, WORST if self._bound.size else 0.0, rows.size)
+        first = most_violated(first, margin, rows.group)
         units = np.union1d(np.union1d(rows.always, first), self._bound)
         responses = Responses(rows.C, factor, self.T)
         iterations = refined = 0
@@ -245,6 +246,7 @@ class CondensedQP:
                     iterations=iterations,
                     info={"condensed": {"rows": int(state_rows.size), "units": int(units.size)}},
                 )
+            missed = most_violated(missed, margin, rows.group)
             units = np.union1d(units, missed)
         return None
 

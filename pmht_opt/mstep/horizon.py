@@ -19,7 +19,7 @@ import scipy.sparse as sp
 import solvers
 from pmht_opt.exceptions import ConfigError, SolverError
 from pmht_opt.model import PX, PY, STATE_DIM, MotionModel
-from pmht_opt.mstep.condensed import CondensedQP
+from pmht_opt.mstep.condensed import COSTLY_WORK, CondensedQP
 from pmht_opt.mstep.formulation import QPLayout, dynamics_rows, in_increments
 from pmht_opt.mstep.rows import ExtraRows, PlatformRows, assemble
 from pmht_opt.mstep.working import WorkingSetQP
@@ -234,7 +234,11 @@ class HorizonQP:
             assert self.state.condensed is not None
             first = self.condensed.costly and self._working_first
             if first:  # condensing these rows cost more than a working set may: that first
-                sol = self._solve_working(W, WZ, r, probe, budget, exact)
+                # ... with no more work than made condensing costly, charged to the M-step's budget.
+                trial = solvers.WorkBudget(COSTLY_WORK)
+                sol = self._solve_working(W, WZ, r, probe, trial, exact)
+                if budget is not None:
+                    budget.spend(trial.spent)
                 if sol is not None:
                     return sol
                 self._working_first = False  # it did not settle here (guaranteed visits): not again

@@ -48,7 +48,7 @@ import scipy.sparse as sp
 
 import solvers
 from pmht_opt.mstep.condensed import BOUND, MAX_ROUNDS, MET, ROUNDING, WORST
-from pmht_opt.mstep.units import Units
+from pmht_opt.mstep.units import Units, groups, most_violated
 
 #: A unit of the working set missed by more than this fraction of its size is imposed again, tighter.
 REL_MET = 1e-4
@@ -226,6 +226,7 @@ class _Rows:
         self.always = np.flatnonzero((self.units.kind == 0) | ~on)
         #: Per unit, the largest ``|b|`` of its rows, which bounds the rounding of its slack.
         self.size = np.maximum.reduceat(np.abs(self.b), self.units.start) if self.b.size else np.zeros(0)
+        self.group = groups(self.A, self.units)
 
     def margin(self, x: np.ndarray) -> np.ndarray:
         """How far inside its cone each unit is at ``x`` (negative: missed)."""
@@ -246,7 +247,8 @@ class _Rows:
         worst = float(miss.max(initial=0.0))
         if worst <= 0.0:
             return np.zeros(0, dtype=int)
-        return np.flatnonzero(miss >= max(fraction * worst, np.finfo(float).tiny))
+        out = np.flatnonzero(miss >= max(fraction * worst, np.finfo(float).tiny))
+        return most_violated(out, -miss, self.group)
 
     def miss(self, x: np.ndarray) -> np.ndarray:
         """Per unit, how far it is missed at ``x`` (0 where it is met)."""
