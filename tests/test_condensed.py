@@ -342,3 +342,38 @@ def test_row_basis_keeps_two_rows_of_each_polygon() -> None:
     np.testing.assert_allclose(T_map @ rows[basis].toarray(), rows.toarray(), atol=1e-14)
     alone, none = row_basis(rows[basis])
     assert none is None and alone.size == basis.size
+
+
+def test_the_sides_of_each_polygon_form_one_group_and_the_most_violated_is_taken() -> None:
+    """Three visit polygons of 16 sides at steps 2, 3 and 5, a bound on a coordinate at step 3 and an
+    equality: the sides of each polygon share a group, the others are groups of their own; of the
+    violated units, one per group is taken, the most violated."""
+    import scipy.sparse as sp
+
+    import solvers
+    from pmht_opt.constraints.blocks import disc_block, inner_polygon
+    from pmht_opt.mstep.units import Units, groups, most_violated
+
+    T, sides = 6, 16
+    cones = disc_block(0, T, np.array([2, 3, 5]), (0, 3), np.ones((3, 2)), np.full(3, 0.1), sides=sides)
+    poly = inner_polygon(cones).G.tocsr()
+    assert poly.shape[0] == 3 * sides
+    bound = sp.csr_matrix(([1.0], ([0], [6 * 3])), shape=(1, 6 * T))
+    equality = sp.csr_matrix(([1.0, -1.0], ([0, 0], [6 * 3, 6 * 3 + 3])), shape=(1, 6 * T))
+    rows = sp.vstack([poly, bound, equality]).tocsr()
+    units = Units.of([solvers.Nonneg(3 * sides + 1), solvers.Zero(1)])
+    g = groups(rows, units)
+    for k in range(3):
+        assert np.unique(g[k * sides : (k + 1) * sides]).size == 1
+    assert np.unique(g).size == 3 + 2
+    # The point (2, 2) at every step: outside each unit disc near (1, 1) of radius 0.1.
+    x = np.zeros(6 * T)
+    x[0::6], x[3::6] = 2.0, 2.0
+    b = np.concatenate([inner_polygon(cones).h, [1.5], [0.0]])
+    margin = b - rows @ x
+    violated = np.flatnonzero(margin < 0)
+    picked = most_violated(violated, margin, g)
+    assert picked.size == np.unique(g[violated]).size >= 4  # one per violated group (polygons, bound)
+    for unit in picked:
+        same = violated[g[violated] == g[unit]]
+        assert margin[unit] == margin[same].min()

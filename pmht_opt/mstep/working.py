@@ -7,7 +7,9 @@ the rows of ``S`` is a relaxation of the whole one, so its optimum costs no more
 and if it also meets every row outside ``S`` it is the whole QP's optimum. The working set starts as
 in :mod:`pmht_opt.mstep.condensed` (the equalities, the slacks' own rows, the units that bound the
 platform's last answer, the units the starting point violates by at least :data:`WORST` of the
-worst) and the units the answer misses join it, up to :data:`MAX_ROUNDS` solves.
+worst) and the units the answer misses join it, up to :data:`MAX_ROUNDS` solves; of the sides of a
+polygon (inequalities on the same columns) only the most violated joins in a round
+(:func:`~pmht_opt.mstep.units.most_violated`).
 
 Why: a first-order solver's iterations cost in proportion to the rows it is given, and their number
 grows with the rows it must sort into active and inactive. An acceleration limit on every step of
