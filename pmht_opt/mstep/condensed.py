@@ -36,10 +36,11 @@ units that bound the platform's last answer to rows of the same shape, with thos
 optimum violates by at least :data:`WORST` of the worst (all it violates when there is no last
 answer); units the answer still violates join it, and the small QP is solved again (at most
 :data:`MAX_ROUNDS` times). Of the inequalities on the same columns (the sides of a polygon that
-stands for a cone on OSQP) only the most violated joins in a round (:func:`~pmht_opt.mstep.units.groups`):
-one side usually pulls the answer inside, and nearly parallel sides slow ADMM down. Speed limits and area bounds on the paper's scenarios bind at a handful
-of the 500 steps, and guaranteed visits at one step per locale, so the QP the backend solves has
-tens of variables instead of the 6000 of the full one.
+stands for a cone on OSQP) only the most violated joins in a round
+(:func:`~pmht_opt.mstep.units.groups`): one side usually pulls the answer inside, and nearly
+parallel sides slow ADMM down. Speed limits and area bounds on the paper's scenarios bind at a
+handful of the 500 steps, and guaranteed visits at one step per locale, so the QP the backend solves
+has tens of variables instead of the 6000 of the full one.
 
 The answer is the same optimum as the full QP's, to the backend's tolerance; the two differ by that
 much, not bit for bit. A condensed solve that does not succeed (a status other than solved, too many
