@@ -215,8 +215,7 @@ class CondensedQP:
         margin = rows.units.margin(rows.b - rows.C @ X0)
         # Carried over: the units that bound the last answer and the worst violations now; afresh:
         # every unit the unconstrained optimum violates.
-        first = _worst(margin, self._bound, WORST if self._bound.size else 0.0, rows.size)
-        first = most_violated(first, margin, rows.group)
+        first = _worst(margin, self._bound, WORST if self._bound.size else 0.0, rows)
         units = np.union1d(np.union1d(rows.always, first), self._bound)
         responses = Responses(rows.C, factor, self.T)
         iterations = refined = 0
@@ -245,7 +244,7 @@ class CondensedQP:
                 refined += 1
                 shift[picked] += s_path[picked] - predicted
                 continue
-            missed = _worst(margin, units, 0.0, rows.size)
+            missed = _worst(margin, units, 0.0, rows)
             if missed.size == 0:
                 self._bound = units[(margin[units] < BOUND) & rows.on_state[units]]
                 return solvers.QPSolution(
@@ -256,7 +255,6 @@ class CondensedQP:
                     iterations=iterations,
                     info={"condensed": {"rows": int(state_rows.size), "units": int(units.size)}},
                 )
-            missed = most_violated(missed, margin, rows.group)
             units = np.union1d(units, missed)
         return None
 
@@ -395,16 +393,17 @@ def _continued(session: solvers.QPSession) -> Callable[[dict[str, Any]], solvers
     return attempt
 
 
-def _worst(margin: np.ndarray, exclude: np.ndarray, fraction: float, size: np.ndarray) -> np.ndarray:
+def _worst(margin: np.ndarray, exclude: np.ndarray, fraction: float, rows: CondensedRows) -> np.ndarray:
     """The units outside ``exclude`` violated by more than their tolerance (:data:`MET`, and the
-    rounding of slacks formed from numbers of ``size``) and by at least ``fraction`` times the worst
-    of them (none if none is violated)."""
-    violation = -margin - (MET + ROUNDING * size)
+    rounding of slacks formed from numbers of ``rows.size``) and by at least ``fraction`` times the
+    worst of them (none if none is violated), the most violated of each group of ``rows`` only."""
+    violation = -margin - (MET + ROUNDING * rows.size)
     violation[exclude] = 0.0
     worst = float(violation.max(initial=0.0))
     if worst <= 0.0:
         return np.zeros(0, dtype=int)
-    return np.flatnonzero(violation >= max(fraction * worst, np.finfo(float).tiny))
+    out = np.flatnonzero(violation >= max(fraction * worst, np.finfo(float).tiny))
+    return most_violated(out, margin, rows.group)
 
 
 def _missed_in(margin: np.ndarray, kind: np.ndarray, size: np.ndarray) -> bool:
