@@ -75,6 +75,8 @@ class WorkingSetQP:
         self._session: solvers.QPSession | None = None
         self._session_key: tuple[object, ...] | None = None
         self._last: np.ndarray | None = None
+        #: The rows' groups (:func:`~pmht_opt.mstep.units.groups`) for a structure of rows, by its key.
+        self._groups: tuple[tuple[object, ...], np.ndarray] | None = None
 
     def solve(
         self,
@@ -101,7 +103,9 @@ class WorkingSetQP:
         hold exactly, and a first-order backend meets them to its tolerance, so misses are measured
         on these.
         """
-        rows = _Rows(problem, n_dyn, self.n_vars, sizes, measured)
+        known = self._groups[1] if self._groups is not None and self._groups[0] == pattern else None
+        rows = _Rows(problem, n_dyn, self.n_vars, sizes, measured, known)
+        self._groups = (pattern, rows.group)
         shape = tuple((c.kind, c.dim) for c in problem.cones[1:])
         if shape != self._shape:
             self._shape, self._bound, self._last = shape, np.zeros(0, dtype=int), None
@@ -208,6 +212,7 @@ class _Rows:
         n_vars: int,
         sizes: np.ndarray | None = None,
         measured: tuple[sp.spmatrix, np.ndarray] | None = None,
+        group: np.ndarray | None = None,
     ) -> None:
         self.n_dyn = n_dyn
         if measured is None:
@@ -228,7 +233,8 @@ class _Rows:
         self.always = np.flatnonzero((self.units.kind == 0) | ~on)
         #: Per unit, the largest ``|b|`` of its rows, which bounds the rounding of its slack.
         self.size = np.maximum.reduceat(np.abs(self.b), self.units.start) if self.b.size else np.zeros(0)
-        self.group = groups(self.A, self.units)
+        #: Per unit, its group (the sides of one polygon share one): given when the structure is known.
+        self.group = groups(self.A, self.units) if group is None else group
 
     def margin(self, x: np.ndarray) -> np.ndarray:
         """How far inside its cone each unit is at ``x`` (negative: missed)."""
