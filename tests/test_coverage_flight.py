@@ -13,6 +13,9 @@ from hypothesis import strategies as st
 import pmht_opt as po
 from pmht_opt.exceptions import ConfigError
 from pmht_opt.planners.coverage.flight import retime, visit_steps, visit_times
+from pmht_opt.planners.coverage.fly import Track
+from pmht_opt.tours import plan_tours
+from pmht_opt.tours.problem import DiscProblem, TourSettings
 from studies import cetsp
 
 
@@ -30,7 +33,7 @@ def test_crowded_times_spread_around_their_mean() -> None:
 
 
 def test_a_route_with_more_distinct_visits_than_steps_names_the_horizon() -> None:
-    with pytest.raises(ConfigError, match="horizon: 3 steps cannot hold a route with 4 distinct visits"):
+    with pytest.raises(ConfigError, match="horizon: 3 steps cannot hold a route with 4 distinct turns"):
         visit_times(np.array([1.0, 1.5, 2.0, 2.5]), 3, np.ones(4, dtype=bool))
 
 
@@ -76,6 +79,36 @@ def test_a_tour_with_crowded_turns_is_flown_close_to_it() -> None:
     res = po.plan(sc, "coverage", settings=po.Settings(constraints=[po.Terminal.return_to_base()], seed=0))
     assert res.coverage() == 1.0
     assert res.total_distance <= 1.06 * res.extras["tour_length"]
+
+
+def _two_rows(horizon: int) -> po.Scenario:
+    """82 discs along two straight rows: a tour of three turns that meets every disc on its legs."""
+    x = np.linspace(1.0, 9.0, 41)
+    locales = np.vstack(
+        [np.column_stack([x, np.full_like(x, 2.0)]), np.column_stack([x[::-1], np.full_like(x, 6.0)])]
+    )
+    return po.Scenario(
+        locales=locales, starts=[[0.5, 2.0]], horizon=horizon, coverage_radius=0.3, bounds=(0, 10, 0, 10)
+    )
+
+
+def test_only_turns_need_steps_of_their_own() -> None:
+    # 82 discs, 30 steps: the visits on straight legs share segments of the path, so the horizon only
+    # has to hold the tour's turns (it was refused as too short for 79 distinct visit points).
+    res = po.plan(_two_rows(30), "coverage", settings=po.Settings(seed=0))
+    assert res.coverage() == 1.0
+    assert res.total_distance <= 1.01 * res.extras["tour_length"]
+
+
+def test_the_samples_pass_through_every_turn_of_the_tour() -> None:
+    sc = _two_rows(40)
+    problem = DiscProblem(starts=sc.start_positions, centres=sc.locales, radii=sc.radii, closed=[False])
+    tours = plan_tours(problem, TourSettings(seed=0))
+    track = Track(sc, tours, np.full((1, 2), np.nan), False, np.full(1, np.inf))
+    turns = tours.turns[0]
+    assert turns.shape[0] >= 3
+    gaps = np.hypot(*(track.positions[0][None, :, :] - turns[:, None, :]).transpose(2, 0, 1))
+    assert np.all(gaps.min(axis=1) <= 1e-12 * 10)
 
 
 def test_a_disc_missed_by_the_backends_tolerance_is_imposed_again_inside() -> None:

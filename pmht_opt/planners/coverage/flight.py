@@ -2,8 +2,9 @@ r"""How a straight-line tour is flown: the speed along each route and the smooth
 
 Each platform flies its route's polyline (start, turn points, and home again when closed) in the
 horizon with a :class:`SpeedProfile`: from rest, speeding up over the first steps, at constant
-speed, and, where the mission ends at rest, slowing down to it. The smooth path follows that motion
-through the model's smoother (:mod:`pmht_opt.planners.coverage.fly`).
+speed, and, where the mission ends at rest, slowing down to it; then retimed so that every turn falls
+on a step of its own (:func:`visit_times`), which the samples then pass through. The smooth path
+follows that motion through the model's smoother (:mod:`pmht_opt.planners.coverage.fly`).
 
 The smoothing rule
 ------------------
@@ -123,13 +124,13 @@ def smoothing_model(speeds: np.ndarray, dt: float, radii: np.ndarray, smoothing:
 
 
 def visit_times(t_real: np.ndarray, T: int, apart: np.ndarray) -> np.ndarray:
-    r"""Times in ``[1, T]`` for the visit points, as near as can be to the times ``t_real`` (ascending)
-    at which the flight reaches them, with distinct points a step or more apart.
+    r"""Times in ``[1, T]`` for a route's turn points, as near as can be to the times ``t_real``
+    (ascending) at which the flight reaches them, with distinct points a step or more apart.
 
-    Each disc is imposed at a step of its own (two discs that no one point meets cannot share one),
-    so where the tour's turn points crowd (a cluster of small discs, or many turn points for few steps)
-    the times the constant-speed flight gives them cannot all be kept. The times kept are the least
-    squares fit under the spacing,
+    Each turn (an inner vertex of the route's polyline) takes a step of its own, so that the samples
+    pass through every corner of the tour; where the turns crowd (a cluster of small discs, or many
+    turns for few steps) the times the constant-speed flight gives them cannot all be kept. The times
+    kept are the least squares fit under the spacing,
 
     .. math::
 
@@ -140,9 +141,10 @@ def visit_times(t_real: np.ndarray, T: int, apart: np.ndarray) -> np.ndarray:
     with :math:`u_k = \tau_k - G_k` (:math:`G_k` the gaps summed) it is the isotonic regression of
     :math:`u`, solved exactly by pooling adjacent violators, then clipped to the bounds. Where the
     flight's times already leave a step between distinct points it returns them unchanged. The flight is
-    then retimed to pass each point at its new time (:func:`retime`), so the measurements and the
-    discs agree on when each disc is met. Raises ``ConfigError`` when the horizon has fewer steps than
-    the route has distinct visit points.
+    then retimed to pass each turn at its step (:func:`retime`). The visit points between two turns lie
+    on a straight leg, which one segment of the path covers at any fraction, so they need no step of
+    their own: only the turns bound how short a horizon can be. Raises ``ConfigError`` when the horizon
+    has fewer steps than the route has distinct turns.
     """
     t = np.asarray(t_real, dtype=float)
     if t.size == 0:
@@ -152,7 +154,7 @@ def visit_times(t_real: np.ndarray, T: int, apart: np.ndarray) -> np.ndarray:
     G = np.cumsum(gap)
     if G[-1] + 1 > T:
         raise ConfigError(
-            f"horizon: {T} steps cannot hold a route with {int(G[-1]) + 1} distinct visits; "
+            f"horizon: {T} steps cannot hold a route with {int(G[-1]) + 1} distinct turns; "
             "lengthen the horizon."
         )
     u = _isotonic(t - G)

@@ -88,12 +88,16 @@ class Track:
             clock = np.minimum(t_grid, steps)
             if route.size:
                 s = _arc_of(poly, arcs, tours.points[route])
-                apart = np.ones(route.size, dtype=bool)
-                apart[1:] = np.hypot(*np.diff(tours.points[route], axis=0).T) > 1e-9 * max(arcs[-1], 1e-300)
-                reached = profile.time(s)
-                kept = visit_times(reached, steps, apart)
-                self.visit_time[route] = visit_steps(kept, steps)
+                # The turns (the polyline's inner vertices) each take a step of their own, so the
+                # samples pass through every corner; the visits between them lie on straight legs,
+                # which a segment of the path covers at any fraction (VisitDiscs).
+                turns = arcs[1:-1]
+                apart = np.ones(turns.size, dtype=bool)
+                apart[1:] = np.diff(turns) > 1e-9 * max(arcs[-1], 1e-300)
+                reached = profile.time(turns)
+                kept = visit_steps(visit_times(reached, steps, apart), steps).astype(float)
                 clock = retime(clock, reached, kept, steps)
+                self.visit_time[route] = visit_steps(_retimed(profile.time(s), reached, kept, steps), steps)
             along = profile.arc(clock)
             self.positions[m, 1:] = np.column_stack(
                 [np.interp(along, arcs, poly[:, 0]), np.interp(along, arcs, poly[:, 1])]
@@ -106,6 +110,14 @@ class Track:
         states[:, 1:, POS] = self.positions[:, 1:]
         states[:, 1:, VEL] = np.gradient(self.positions, scenario.dt, axis=1)[:, 1:]
         return states
+
+
+def _retimed(t: np.ndarray, before: np.ndarray, after: np.ndarray, steps: int) -> np.ndarray:
+    """The new times of the original flight's times ``t`` (the inverse of :func:`retime`)."""
+    knots_new = np.concatenate([[0.0], after, [float(steps)]])
+    knots_old = np.concatenate([[0.0], before, [float(steps)]])
+    keep = np.concatenate([[True], np.diff(knots_old) > 0])
+    return np.interp(t, knots_old[keep], knots_new[keep])
 
 
 def _arc_of(poly: np.ndarray, arcs: np.ndarray, points: np.ndarray) -> np.ndarray:
