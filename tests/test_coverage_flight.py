@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 import pmht_opt as po
 from pmht_opt.exceptions import ConfigError
-from pmht_opt.planners.coverage.flight import retime, visit_steps, visit_times
+from pmht_opt.planners.coverage.flight import retime, smoothing_model, visit_steps, visit_times
 from pmht_opt.planners.coverage.fly import Track
 from pmht_opt.tours import plan_tours
 from pmht_opt.tours.problem import DiscProblem, TourSettings
@@ -121,3 +121,14 @@ def test_a_disc_missed_by_the_backends_tolerance_is_imposed_again_inside() -> No
     assert isinstance(res.extras["tightened"], bool)
     assert res.coverage(0.1) == 1.0
     assert all(rep.max_violation <= 1e-7 for rep in res.reports)
+
+
+def test_the_weights_of_platforms_of_very_different_speeds_stay_within_1e6() -> None:
+    # C seed 7 at radius 0.1: one route a hundred times shorter than another gave weights of 1e12 and
+    # 1, and a disc touched at a turn was then met only to 1.7e-4 of its radius.
+    speeds = np.array([0.038, 0.091, 0.00057, 0.0061])
+    model = smoothing_model(speeds, 1.0, np.full(5, 0.1), 0.3)
+    assert model.weights.max() <= 1e6 * (1 + 1e-12) and model.weights.min() == 1.0
+    # Within the ratio the rule is untouched: tau = turn / speed, weights (tau_max / tau_m)^6.
+    model = smoothing_model(np.array([0.01, 0.02]), 1.0, np.full(5, 0.1), 0.3)
+    assert model.weights == pytest.approx([1.0, 2.0**6])
