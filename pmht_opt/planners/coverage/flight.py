@@ -192,11 +192,15 @@ def visit_steps(times: np.ndarray, T: int) -> np.ndarray:
     return np.clip(np.floor(np.asarray(times) + 0.5).astype(int), 1, T)
 
 
-def retime(t: np.ndarray, before: np.ndarray, after: np.ndarray, steps: int) -> np.ndarray:
+def retime(
+    t: np.ndarray, before: np.ndarray, after: np.ndarray, steps: int, inverse: bool = False
+) -> np.ndarray:
     """The times of the original flight at which the retimed one is at times ``t``: the retiming is
-    piecewise linear, through each visit's time ``before`` (ascending) and its new time ``after``,
-    and keeps the start and the end."""
+    piecewise linear, through each turn's time ``before`` (ascending) and its new time ``after``,
+    and keeps the start and the end. With ``inverse``, the other way: the retimed flight's times of
+    the original flight's times ``t`` (where each visit between the turns is reached)."""
     knots_new = np.concatenate([[0.0], after, [float(steps)]])
     knots_old = np.concatenate([[0.0], before, [float(steps)]])
-    keep = np.concatenate([[True], np.diff(knots_new) > 0])
-    return np.interp(t, knots_new[keep], knots_old[keep])
+    x, y = (knots_old, knots_new) if inverse else (knots_new, knots_old)
+    keep = np.concatenate([[True], np.diff(x) > 0])
+    return np.interp(t, x[keep], y[keep])

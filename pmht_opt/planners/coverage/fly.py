@@ -97,7 +97,9 @@ class Track:
                 reached = profile.time(turns)
                 kept = visit_steps(visit_times(reached, steps, apart), steps).astype(float)
                 clock = retime(clock, reached, kept, steps)
-                self.visit_time[route] = visit_steps(_retimed(profile.time(s), reached, kept, steps), steps)
+                self.visit_time[route] = visit_steps(
+                    retime(profile.time(s), reached, kept, steps, inverse=True), steps
+                )
             along = profile.arc(clock)
             self.positions[m, 1:] = np.column_stack(
                 [np.interp(along, arcs, poly[:, 0]), np.interp(along, arcs, poly[:, 1])]
@@ -110,14 +112,6 @@ class Track:
         states[:, 1:, POS] = self.positions[:, 1:]
         states[:, 1:, VEL] = np.gradient(self.positions, scenario.dt, axis=1)[:, 1:]
         return states
-
-
-def _retimed(t: np.ndarray, before: np.ndarray, after: np.ndarray, steps: int) -> np.ndarray:
-    """The new times of the original flight's times ``t`` (the inverse of :func:`retime`)."""
-    knots_new = np.concatenate([[0.0], after, [float(steps)]])
-    knots_old = np.concatenate([[0.0], before, [float(steps)]])
-    keep = np.concatenate([[True], np.diff(knots_old) > 0])
-    return np.interp(t, knots_old[keep], knots_new[keep])
 
 
 def _arc_of(poly: np.ndarray, arcs: np.ndarray, points: np.ndarray) -> np.ndarray:
